@@ -1,0 +1,253 @@
+"""The ``formation-bench`` command line.
+
+Every bad option, unknown name or out-of-range field ends in a one-line
+error naming it and what is allowed, exit code 2, no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import sys
+import time
+from pathlib import Path
+from typing import Any, NoReturn
+
+import pandas as pd
+
+from benchmarks.outputs import write_metrics, write_trace
+from benchmarks.paper import comparison_rows, format_table
+from benchmarks.runner import RunOutcome, run_closed_loop, write_figures, write_trigger_figure
+from mpc.reference import REFERENCE_PATHS
+from mpc.scenario import SCENARIOS, Scenario, get_scenario
+from optimizers import OPTIMIZERS, Optimizer, get_optimizer
+
+DEFAULT_OPTIMIZER = "modified-bso"
+
+
+class UsageError(Exception):
+    """A problem with what the user asked for (reported in one line, exit 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def parse_value(text: str) -> Any:
+    """A ``--set`` value: a Python literal (number, bool, tuple, ...) or else the plain string."""
+    lowered = text.strip().lower()
+    if lowered in ("true", "false"):
+        return lowered == "true"
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
+def split_overrides(
+    assignments: list[str], scenario: Scenario, optimizer: Optimizer
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Route ``FIELD=VALUE`` pairs to the scenario or the optimiser.
+
+    ``scenario.FIELD`` and ``optimizer.FIELD`` say where explicitly; a bare
+    field goes to whichever has it.
+    """
+    scenario_fields = {f.name for f in dataclasses.fields(scenario)}
+    optimizer_fields = {f.name for f in dataclasses.fields(optimizer)}  # type: ignore[arg-type]
+    to_scenario: dict[str, Any] = {}
+    to_optimizer: dict[str, Any] = {}
+    for assignment in assignments:
+        name, sep, raw = assignment.partition("=")
+        if not sep or not name:
+            raise UsageError(f"--set expects FIELD=VALUE, got {assignment!r}")
+        target, dot, field = name.partition(".")
+        if not dot:
+            field, target = name, ""
+        if target not in ("", "scenario", "optimizer"):
+            raise UsageError(f"--set {name}: prefix must be 'scenario.' or 'optimizer.'")
+        in_scenario, in_optimizer = field in scenario_fields, field in optimizer_fields
+        if target == "scenario" or (not target and in_scenario and not in_optimizer):
+            if not in_scenario:
+                allowed = ", ".join(sorted(scenario_fields))
+                raise UsageError(f"--set {name}: unknown scenario field; fields: {allowed}")
+            to_scenario[field] = parse_value(raw)
+        elif target == "optimizer" or (not target and in_optimizer and not in_scenario):
+            if not in_optimizer:
+                allowed = ", ".join(sorted(optimizer_fields))
+                raise UsageError(f"--set {name}: unknown optimizer field; fields: {allowed}")
+            to_optimizer[field] = parse_value(raw)
+        elif in_scenario and in_optimizer:
+            raise UsageError(f"--set {name}: ambiguous, write scenario.{name} or optimizer.{name}")
+        else:
+            raise UsageError(
+                f"--set {name}: unknown field; scenario fields: "
+                f"{', '.join(sorted(scenario_fields))}; "
+                f"optimizer fields: {', '.join(sorted(optimizer_fields))}"
+            )
+    return to_scenario, to_optimizer
+
+
+def _build(args: argparse.Namespace) -> tuple[Scenario, Optimizer]:
+    if args.optimizer not in OPTIMIZERS:
+        allowed = ", ".join(sorted(OPTIMIZERS))
+        raise UsageError(f"--optimizer: unknown name {args.optimizer!r}; allowed: {allowed}")
+    if args.scenario not in SCENARIOS:
+        raise UsageError(
+            f"--scenario: unknown name {args.scenario!r}; allowed: {', '.join(sorted(SCENARIOS))}"
+        )
+    scenario, optimizer = get_scenario(args.scenario), get_optimizer(args.optimizer)
+    to_scenario, to_optimizer = split_overrides(args.set or [], scenario, optimizer)
+    try:
+        return (
+            get_scenario(args.scenario, **to_scenario),
+            get_optimizer(args.optimizer, **to_optimizer),
+        )
+    except (ValueError, TypeError, KeyError) as err:
+        raise UsageError(f"--set: {_message(err)}") from None
+
+
+def _message(err: BaseException) -> str:
+    return str(err.args[0]) if err.args else str(err)
+
+
+def _summary(metrics: dict[str, Any]) -> str:
+    distances = " ".join(f"{k}={v:.3f}" for k, v in metrics["distance_error_max_m"].items())
+    return (
+        f"{metrics['optimizer']} {metrics['scenario']} trigger={metrics['trigger']} "
+        f"seed={metrics['seed']}: tracking max {metrics['tracking_error_max_m']:.3f} m, "
+        f"distance error max {distances} m, solves {metrics['solves_per_uav']}, "
+        f"median solve {1e3 * metrics['solve_time_median_s']:.2f} ms, "
+        f"wall {metrics['wall_time_s']:.1f} s"
+    )
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    print("optimizers:")
+    for name in sorted(OPTIMIZERS):
+        print(f"  {name:<36} {OPTIMIZERS[name].description}")
+    print("scenarios:")
+    for name, scenario in sorted(SCENARIOS.items()):
+        print(
+            f"  {name:<36} {scenario.n_uav} UAVs, reference '{scenario.reference}', "
+            f"{scenario.n_steps} instants of {scenario.period_s:g} s"
+        )
+    print("reference paths: " + ", ".join(sorted(REFERENCE_PATHS)))
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    scenario, optimizer = _build(args)
+    out = Path(args.out)
+    outcome = run_closed_loop(
+        scenario, args.optimizer, optimizer, trigger=args.trigger, seed=args.seed
+    )
+    suffix = "trigger" if args.trigger else "no_trigger"
+    write_metrics(out / "metrics.json", outcome.metrics)
+    write_trace(out / "trace.parquet", outcome.frame)
+    write_figures(outcome, out, suffix, (5, 6) if args.trigger else (3, 4))
+    write_trigger_figure(outcome, out, f"fig7_solve_instants_{suffix}.png")
+    print(_summary(outcome.metrics))
+    print(f"wrote {out}/metrics.json, trace.parquet and figures")
+    return 0
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    scenario = get_scenario("paper")
+    optimizer = get_optimizer(DEFAULT_OPTIMIZER)
+    out = Path(args.out)
+    outcomes: list[RunOutcome] = []
+    for trigger in (False, True):
+        outcome = run_closed_loop(
+            scenario, DEFAULT_OPTIMIZER, optimizer, trigger=trigger, seed=args.seed
+        )
+        outcomes.append(outcome)
+        print(_summary(outcome.metrics), flush=True)
+    metrics = [o.metrics for o in outcomes]
+    write_metrics(out / "metrics.json", metrics)
+    write_trace(out / "trace.parquet", pd.concat([o.frame for o in outcomes], ignore_index=True))
+    write_figures(outcomes[0], out, "no_trigger", (3, 4))
+    write_figures(outcomes[1], out, "trigger", (5, 6))
+    write_trigger_figure(outcomes[1], out, "fig7_solve_instants.png")
+    rows = comparison_rows(metrics)
+    print()
+    print(
+        f"Paper scenario, {DEFAULT_OPTIMIZER}, seed {args.seed} "
+        f"(errors after the {scenario.settle_time_s:g} s settle time):"
+    )
+    print(format_table(rows))
+    held = sum(row["holds"] for row in rows)
+    print(f"{held} of {len(rows)} reported figures reached.")
+    print(
+        f"wrote {out}/metrics.json, trace.parquet and figures fig3-fig7 "
+        f"({time.perf_counter() - start:.1f} s in all)"
+    )
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="formation-bench", description=__doc__.splitlines()[0] if __doc__ else "")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    reproduce = sub.add_parser(
+        "reproduce", help="the paper scenario with the modified BSO, without and with trigger"
+    )
+    reproduce.add_argument(
+        "--out", default="results/reproduce", help="output folder (default: results/reproduce)"
+    )
+    reproduce.add_argument(
+        "--seed", type=_seed, default=0, help="run seed, integer >= 0 (default 0)"
+    )
+    reproduce.set_defaults(func=cmd_reproduce)
+
+    run = sub.add_parser("run", help="one closed-loop run")
+    run.add_argument("--optimizer", required=True, help="registered optimizer name (see 'list')")
+    run.add_argument(
+        "--scenario", default="paper", help="registered scenario name (default: paper)"
+    )
+    run.add_argument(
+        "--trigger",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="use the event trigger (default) or solve at every instant",
+    )
+    run.add_argument("--seed", type=_seed, default=0, help="run seed, integer >= 0 (default 0)")
+    run.add_argument(
+        "--set",
+        action="append",
+        metavar="FIELD=VALUE",
+        help="override a scenario or optimizer field (repeatable); "
+        "prefix with scenario. or optimizer. if ambiguous",
+    )
+    run.add_argument("--out", required=True, help="output folder")
+    run.set_defaults(func=cmd_run)
+
+    listing = sub.add_parser("list", help="registered optimizers and scenarios")
+    listing.set_defaults(func=cmd_list)
+    return parser
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {value}")
+    return value
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except UsageError as err:
+        print(f"formation-bench {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

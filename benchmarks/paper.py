@@ -1,0 +1,79 @@
+"""The paper's reported figures (Section 3) and the table that sets a run beside them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class PaperFigure:
+    """One reported figure: an upper bound on a metric of one of the two runs."""
+
+    trigger: bool
+    """Which run: with (True) or without (False) the event trigger."""
+    label: str
+    """What the paper reports, in words."""
+    limit: float
+    """The paper's bound (the metric must be <= it)."""
+    unit: str
+    """Unit of the bound, for the table."""
+    key: str
+    """Key of the metric in ``metrics.json``."""
+    item: str | int | None = None
+    """Pair name (``distance_error_max_m``) or UAV index (``solves_per_uav``), if any."""
+
+    def measured(self, metrics: dict[str, Any]) -> float:
+        value = metrics[self.key]
+        return float(value if self.item is None else value[self.item])
+
+
+PAPER_FIGURES: tuple[PaperFigure, ...] = (
+    PaperFigure(False, "tracking error max", 1.25, "m", "tracking_error_max_m"),
+    PaperFigure(False, "d12 error max", 0.2, "m", "distance_error_max_m", "d12"),
+    PaperFigure(False, "d23 error max", 0.2, "m", "distance_error_max_m", "d23"),
+    PaperFigure(False, "d31 error max", 0.2, "m", "distance_error_max_m", "d31"),
+    PaperFigure(True, "tracking error max", 1.4, "m", "tracking_error_max_m"),
+    PaperFigure(True, "d12 error max", 0.3, "m", "distance_error_max_m", "d12"),
+    PaperFigure(True, "d23 error max", 0.3, "m", "distance_error_max_m", "d23"),
+    PaperFigure(True, "d31 error max", 0.25, "m", "distance_error_max_m", "d31"),
+    # The paper reports 157/155/160 solves of 240 and claims at most two thirds.
+    PaperFigure(True, "UAV 1 solves (paper: 157)", 160, "of 240", "solves_per_uav", 0),
+    PaperFigure(True, "UAV 2 solves (paper: 155)", 160, "of 240", "solves_per_uav", 1),
+    PaperFigure(True, "UAV 3 solves (paper: 160)", 160, "of 240", "solves_per_uav", 2),
+)
+
+
+def comparison_rows(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per paper figure: run, the paper's bound, the measured value, whether it holds."""
+    by_trigger = {bool(m["trigger"]): m for m in runs}
+    rows = []
+    for figure in PAPER_FIGURES:
+        metrics = by_trigger.get(figure.trigger)
+        if metrics is None:
+            continue
+        value = figure.measured(metrics)
+        rows.append(
+            {
+                "run": "with trigger" if figure.trigger else "without trigger",
+                "figure": figure.label,
+                "paper": figure.limit,
+                "unit": figure.unit,
+                "measured": value,
+                "holds": value <= figure.limit,
+            }
+        )
+    return rows
+
+
+def format_table(rows: list[dict[str, Any]]) -> str:
+    """A plain-text table of :func:`comparison_rows`."""
+    header = f"{'run':<16} {'figure':<27} {'paper':>10} {'measured':>10}  holds"
+    lines = [header, "-" * len(header)]
+    for row in rows:
+        paper = f"<= {row['paper']:g}"
+        lines.append(
+            f"{row['run']:<16} {row['figure']:<27} {paper:>10} {row['measured']:>10.3f}  "
+            f"{'yes' if row['holds'] else 'NO'}  {row['unit']}"
+        )
+    return "\n".join(lines)

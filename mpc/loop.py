@@ -1,0 +1,190 @@
+"""The closed loop: the fixed DMPC harness every optimiser is plugged into.
+
+At every update instant t_c (c = 0, 1, ...), every UAV, in parallel (Jacobi):
+
+1. builds estimates of its neighbours from their last published plans;
+2. decides with the trigger whether to re-solve (always at c = 0, when it has
+   no plan of its own, and at every instant when the trigger is off);
+3. if so, solves its problem of eq. (14) warm-started from its shifted
+   previous plan, and publishes the new plan;
+4. applies the control of its current plan for this period.
+
+The plant is the same model as the prediction (eq. 1, RK4, zero-order hold).
+Each UAV draws its random numbers from its own Generator, spawned from the
+run's seed, so a run's numbers do not depend on the order of the UAVs' solves.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from mpc.model import step_plant
+from mpc.problem import LocalProblem, Plan, coasting_plan, estimate_positions, shifted_controls
+from mpc.scenario import Scenario
+from mpc.trigger import (
+    TriggerDecision,
+    control_condition,
+    distance_condition,
+    expiry_condition,
+    tracking_condition,
+)
+from optimizers.base import Budget, Optimizer
+
+
+@dataclass(frozen=True)
+class Trace:
+    """Everything logged by one closed-loop run (T = n_steps instants, N UAVs)."""
+
+    scenario: Scenario
+    optimizer: str
+    trigger: bool
+    seed: int
+    times: np.ndarray
+    """``(T + 1,)`` instants t_c, seconds; the last is the end of the run."""
+    states: np.ndarray
+    """``(T + 1, N, 4)`` states at every instant."""
+    controls: np.ndarray
+    """``(T, N, 2)`` controls applied over ``[t_c, t_c + delta_T)``."""
+    solved: np.ndarray
+    """``(T, N)`` whether each UAV re-solved at t_c."""
+    reasons: np.ndarray
+    """``(T, N, 4)`` which trigger conditions held (see ``TRIGGER_CONDITIONS``); at c = 0
+    every UAV has no plan yet, logged as expiry."""
+    solve_time_s: np.ndarray
+    """``(T, N)`` wall time of each solve (problem build + optimiser), NaN if none."""
+    nfev: np.ndarray
+    """``(T, N)`` objective evaluations of each solve, 0 if none."""
+    solve_cost: np.ndarray
+    """``(T, N)`` optimal cost J_i found, NaN if none."""
+    reference: np.ndarray
+    """``(T + 1, 2)`` reference formation-centre position at every instant."""
+    reference_heading: np.ndarray
+    """``(T + 1,)`` reference heading, rad."""
+    desired_offsets: np.ndarray
+    """``(T + 1, N, 2)`` desired world-frame offsets of every UAV from the centre."""
+    wall_time_s: float
+    """Wall time of the whole run, seconds."""
+
+
+ProgressCallback = Callable[[int, int], None]
+
+
+def simulate(
+    scenario: Scenario,
+    optimizer: Optimizer,
+    *,
+    trigger: bool,
+    seed: int,
+    optimizer_name: str = "",
+    budget: Budget | None = None,
+    progress: ProgressCallback | None = None,
+) -> Trace:
+    """Run the closed loop for ``scenario.n_steps`` instants and log it."""
+    start_time = time.perf_counter()
+    n_uav, horizon, period = scenario.n_uav, scenario.horizon_steps, scenario.period_s
+    n_steps = scenario.n_steps
+    rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(n_uav)]
+
+    times = np.arange(n_steps + horizon + 1) * period
+    reference, heading = scenario.reference_at(times)
+    offsets = scenario.desired_offsets(heading)  # (n_steps + H + 1, N, 2)
+    lookahead = scenario.trigger_lookahead
+    lower, upper = scenario.control_lower, scenario.control_upper
+
+    states = np.empty((n_steps + 1, n_uav, 4))
+    states[0] = scenario.initial_state_array()
+    controls = np.zeros((n_steps, n_uav, 2))
+    solved = np.zeros((n_steps, n_uav), dtype=bool)
+    reasons = np.zeros((n_steps, n_uav, 4), dtype=bool)
+    solve_time = np.full((n_steps, n_uav), np.nan)
+    nfev = np.zeros((n_steps, n_uav), dtype=np.int64)
+    solve_cost = np.full((n_steps, n_uav), np.nan)
+
+    plans: list[Plan] = [coasting_plan(states[0, i], 0, scenario) for i in range(n_uav)]
+    for c in range(n_steps):
+        estimates = np.stack(
+            [
+                estimate_positions(plans[j], c, horizon + 1, period, scenario.estimate_extension)
+                for j in range(n_uav)
+            ]
+        )  # (N, H + 1, 2), instants c .. c + H
+        published = list(plans)
+        for i in range(n_uav):
+            neighbours = [j for j in range(n_uav) if j != i]
+            desired_relative = np.transpose(
+                offsets[c : c + horizon + 1, i][:, None] - offsets[c : c + horizon + 1, neighbours],
+                (1, 0, 2),
+            )  # (J, H + 1, 2)
+            if c == 0:
+                decision = TriggerDecision(False, False, False, True)
+            else:
+                window = slice(0, lookahead + 1)
+                own_plan = plans[i]
+                decision = TriggerDecision(
+                    distance=distance_condition(
+                        estimates[i, window],
+                        estimates[neighbours, window],
+                        desired_relative[:, window],
+                        scenario.eps_p,
+                    ),
+                    tracking=tracking_condition(
+                        estimates[i, window],
+                        estimates[neighbours, window],
+                        reference[c : c + lookahead + 1],
+                        n_uav,
+                        scenario.eps_o,
+                    ),
+                    control=c - own_plan.start_step < horizon
+                    and control_condition(
+                        own_plan.controls[c - own_plan.start_step], lower, upper, scenario.eta
+                    ),
+                    expiry=expiry_condition(c - own_plan.start_step, horizon),
+                )
+            reasons[c, i] = decision.as_tuple()
+            if trigger and not decision.fire:
+                continue
+            solve_start = time.perf_counter()
+            problem = LocalProblem(
+                scenario,
+                i,
+                states[c, i],
+                estimates[neighbours, 1:],
+                desired_relative[:, 1:],
+                reference[c + 1 : c + horizon + 1],
+            )
+            warm_start = problem.decision_from_controls(shifted_controls(plans[i], c))
+            result = optimizer.minimize(problem, problem.bounds, rngs[i], budget, warm_start)
+            published[i] = problem.plan(result.x, c)
+            solve_time[c, i] = time.perf_counter() - solve_start
+            solved[c, i] = True
+            nfev[c, i] = result.nfev
+            solve_cost[c, i] = result.fun
+        plans = published
+        for i in range(n_uav):
+            controls[c, i] = plans[i].controls[c - plans[i].start_step]
+        states[c + 1] = step_plant(states[c], controls[c], period, scenario.rk4_substeps)
+        if progress is not None:
+            progress(c + 1, n_steps)
+
+    return Trace(
+        scenario=scenario,
+        optimizer=optimizer_name or type(optimizer).__name__,
+        trigger=trigger,
+        seed=seed,
+        times=times[: n_steps + 1],
+        states=states,
+        controls=controls,
+        solved=solved,
+        reasons=reasons,
+        solve_time_s=solve_time,
+        nfev=nfev,
+        solve_cost=solve_cost,
+        reference=reference[: n_steps + 1],
+        reference_heading=heading[: n_steps + 1],
+        desired_offsets=offsets[: n_steps + 1],
+        wall_time_s=time.perf_counter() - start_time,
+    )

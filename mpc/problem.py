@@ -1,0 +1,155 @@
+"""Plans, neighbour estimates, and the per-UAV optimisation problem.
+
+A :class:`Plan` is what a UAV publishes after a solve: its control sequence
+over the horizon and the states it predicts. Neighbours turn it into an
+*estimate* (Section 2.2): the plan's predicted positions from the current
+instant on, extended past the plan's end by the scenario's
+:class:`~mpc.scenario.EstimateExtension` rule. :class:`LocalProblem` is the
+problem of eq. (14) built from those estimates, exposed to optimisers as a
+batch objective over the (blocked) control sequence with box bounds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mpc.cost import batch_cost, block_map
+from mpc.model import rollout
+from mpc.scenario import EstimateExtension, Scenario
+from optimizers.base import Bounds
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A UAV's published plan."""
+
+    start_step: int
+    """Update instant c at which the plan was computed (its first control applies then)."""
+    controls: np.ndarray
+    """Planned controls ``(H, 2)``, one per period."""
+    states: np.ndarray
+    """Predicted states ``(H + 1, 4)``; row 0 is the state at ``start_step``."""
+
+    @property
+    def horizon_steps(self) -> int:
+        return int(self.controls.shape[0])
+
+
+def coasting_plan(state: np.ndarray, start_step: int, scenario: Scenario) -> Plan:
+    """The zero-control plan from ``state``: what a UAV is assumed to do before any plan.
+
+    At t0 no plan has been exchanged; each UAV then assumes its neighbours
+    keep their current speed and heading.
+    """
+    controls = np.zeros((scenario.horizon_steps, 2))
+    return Plan(
+        start_step, controls, rollout(state, controls, scenario.period_s, scenario.rk4_substeps)
+    )
+
+
+def estimate_positions(
+    plan: Plan, step: int, n_points: int, period: float, extension: EstimateExtension
+) -> np.ndarray:
+    """Estimated positions at instants ``step, step + 1, ..., step + n_points - 1``.
+
+    Inside the plan they are its predicted positions; past its end they follow
+    ``extension``: COAST flies the terminal state on at constant speed and
+    heading, HOLD keeps the terminal position.
+    """
+    horizon = plan.horizon_steps
+    index = step - plan.start_step + np.arange(n_points)
+    if index[0] < 0:
+        raise ValueError(f"plan starts at instant {plan.start_step}, after {step}")
+    positions = plan.states[np.minimum(index, horizon), :2].copy()
+    if extension == EstimateExtension.COAST:
+        beyond = np.maximum(index - horizon, 0) * period
+        _, _, theta, v = plan.states[horizon]
+        positions[:, 0] += v * np.cos(theta) * beyond
+        positions[:, 1] += v * np.sin(theta) * beyond
+    return positions
+
+
+def shifted_controls(plan: Plan, step: int) -> np.ndarray:
+    """The plan's controls from instant ``step`` on, padded with its last control."""
+    horizon = plan.horizon_steps
+    index = np.minimum(step - plan.start_step + np.arange(horizon), horizon - 1)
+    return plan.controls[index]
+
+
+class LocalProblem:
+    """UAV ``uav``'s problem of eq. (14) at one update instant, as a batch objective.
+
+    Calling it with ``(n, 2 * n_blocks)`` decision vectors (rows of
+    ``[a_1, omega_1, a_2, omega_2, ...]``, one pair per block) returns ``(n,)``
+    costs. ``bounds`` are the control bounds repeated per block.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        uav: int,
+        state: np.ndarray,
+        neighbour_positions: np.ndarray,
+        desired_relative: np.ndarray,
+        reference: np.ndarray,
+    ) -> None:
+        self.scenario = scenario
+        self.uav = uav
+        self.state = np.ascontiguousarray(state, dtype=np.float64)
+        self.neighbour_positions = neighbour_positions
+        """Estimated neighbour positions over the horizon, ``(J, H, 2)``."""
+        self.desired_relative = desired_relative
+        """Desired ``p_i - p_j`` over the horizon, ``(J, H, 2)``."""
+        self.reference = reference
+        """Desired formation-centre positions over the horizon, ``(H, 2)``."""
+        self.block_of_step = block_map(scenario.horizon_steps, scenario.n_blocks)
+        self.bounds = Bounds(
+            np.tile(scenario.control_lower, scenario.n_blocks),
+            np.tile(scenario.control_upper, scenario.n_blocks),
+        )
+        n_uav = scenario.n_uav
+        self._distance_targets = np.ascontiguousarray(neighbour_positions + desired_relative)
+        self._centre_target = np.ascontiguousarray(
+            n_uav * reference - neighbour_positions.sum(axis=0)
+        )
+        self._w_centre = scenario.w_trj / n_uav**2
+
+    @property
+    def dim(self) -> int:
+        return self.bounds.dim
+
+    def __call__(self, decisions: np.ndarray) -> np.ndarray:
+        decisions = np.ascontiguousarray(decisions, dtype=np.float64)
+        if decisions.ndim != 2 or decisions.shape[1] != self.dim:
+            raise ValueError(f"decisions must have shape (n, {self.dim}), got {decisions.shape}")
+        return batch_cost(
+            decisions,
+            self.state,
+            self.block_of_step,
+            self.scenario.period_s,
+            self.scenario.rk4_substeps,
+            self._distance_targets,
+            self._centre_target,
+            self.scenario.w_dst,
+            self._w_centre,
+        )
+
+    def controls(self, decision: np.ndarray) -> np.ndarray:
+        """Per-period controls ``(H, 2)`` of one decision vector."""
+        return np.asarray(decision, dtype=np.float64).reshape(-1, 2)[self.block_of_step]
+
+    def decision_from_controls(self, controls: np.ndarray) -> np.ndarray:
+        """Block averages of per-period controls ``(H, 2)``: the warm-start decision."""
+        n_blocks = self.scenario.n_blocks
+        sums = np.zeros((n_blocks, 2))
+        np.add.at(sums, self.block_of_step, controls)
+        counts = np.bincount(self.block_of_step, minlength=n_blocks)[:, None]
+        return self.bounds.clip((sums / counts).reshape(-1))
+
+    def plan(self, decision: np.ndarray, start_step: int) -> Plan:
+        """The plan a decision vector stands for, starting at ``start_step``."""
+        controls = self.controls(decision)
+        states = rollout(self.state, controls, self.scenario.period_s, self.scenario.rk4_substeps)
+        return Plan(start_step, controls, states)

@@ -1,0 +1,291 @@
+"""Scenarios: everything the DMPC harness needs, as one validated dataclass.
+
+The default is the paper's Section 3 scenario; the choices the paper leaves
+open (reference path, formation frame, estimate extension, decision blocking,
+weights) are fields with documented defaults, so a sweep can vary them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+import typing
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from mpc.reference import REFERENCE_PATHS, ReferencePath
+
+
+class FormationFrame(enum.StrEnum):
+    """Frame in which the formation offsets are fixed."""
+
+    PATH = "path"
+    """Offsets turn with the reference path's heading (x forward, y left)."""
+    WORLD = "world"
+    """Offsets are fixed in the world frame."""
+
+
+class EstimateExtension(enum.StrEnum):
+    """How a neighbour's estimate is extended past the end of its last plan."""
+
+    COAST = "coast"
+    """Propagate the plan's terminal state with zero control (constant speed and heading)."""
+    HOLD = "hold"
+    """Hold the plan's terminal position (the literal reading of Section 2.2)."""
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A formation-control scenario and the DMPC settings that go with it."""
+
+    name: str = "paper"
+    """Name used in results."""
+    initial_states: tuple[tuple[float, float, float, float], ...] = (
+        (-7.08, -17.96, math.radians(68.02), 13.12),
+        (-18.48, -5.25, math.radians(14.74), 15.43),
+        (-15.46, 11.29, math.radians(-35.97), 16.83),
+    )
+    """Initial ``(x m, y m, heading rad, speed m/s)`` of every UAV (Table 1)."""
+    formation_offsets: tuple[tuple[float, float], ...] = (
+        (10.0 / 3.0, -10.0),
+        (-20.0 / 3.0, 0.0),
+        (10.0 / 3.0, 10.0),
+    )
+    """Desired position of every UAV relative to the formation centre, in metres, in
+    ``formation_frame``. Their mean must be zero (the centre is the UAVs' mean). The
+    default is the paper's isosceles right triangle: hypotenuse 20 m between UAV 1 and
+    UAV 3 across the path, UAV 2 at the right angle trailing."""
+    formation_frame: FormationFrame = FormationFrame.PATH
+    """Frame of the offsets: turning with the reference heading, or fixed in the world."""
+    reference: str = "turn"
+    """Reference path of the formation centre: one of :data:`REFERENCE_PATHS`."""
+    reference_start: tuple[float, float] | None = None
+    """Where the reference path starts at t = 0, metres; None = the UAVs' initial centre
+    (their mean initial position)."""
+    period_s: float = 0.2
+    """Control update period delta_T, seconds, > 0."""
+    horizon_steps: int = 20
+    """Prediction horizon in periods (Tp = horizon_steps * period_s), >= 1."""
+    n_steps: int = 240
+    """Update instants simulated, >= 1."""
+    accel_bounds: tuple[float, float] = (-7.0, 7.0)
+    """Bounds on the acceleration a, m/s^2, lower < upper."""
+    turn_rate_bounds: tuple[float, float] = (-0.25, 0.25)
+    """Bounds on the turn rate omega, rad/s, lower < upper."""
+    w_dst: float = 1.0
+    """Weight of the relative-position (formation) term of eq. (14), >= 0."""
+    w_trj: float = 3.0
+    """Weight of the formation-centre tracking term of eq. (14), >= 0. The default 3 (with
+    w_dst = 1) was chosen by measurement: see docs/design.md."""
+    n_blocks: int = 5
+    """Control blocks per horizon: the decision vector holds ``2 * n_blocks`` numbers, each
+    control held over ``horizon_steps / n_blocks`` periods. 1..horizon_steps. The default 5
+    (d = 10) was chosen by measurement: see docs/design.md."""
+    estimate_extension: EstimateExtension = EstimateExtension.COAST
+    """How neighbour estimates are extended past the end of their last plan."""
+    eps_p: float = 2.0
+    """Trigger threshold on the predicted relative-position error, eq. (15), metres, >= 0."""
+    eps_o: float = 2.0
+    """Trigger threshold on the formation-centre tracking error, eq. (16), metres, >= 0."""
+    eta: float = 1.0
+    """Trigger fraction of the control bound, eq. (17), in (0, 1]."""
+    trigger_lookahead_steps: int | None = None
+    """Conditions (15)-(16) are checked on the predicted trajectories at t_c and this many
+    periods after it: None (the default) = the whole horizon, reading eq. (16)'s ``t`` as
+    any predicted time; 0 checks t_c only. None or 0..horizon_steps."""
+    settle_time_s: float = 10.0
+    """Metrics of tracking and formation error count from this time on, seconds, >= 0."""
+    rk4_substeps: int = 1
+    """RK4 sub-steps per control period in prediction and plant, >= 1."""
+
+    def __post_init__(self) -> None:
+        _coerce_enums(self)
+        states = np.asarray(self.initial_states, dtype=np.float64)
+        offsets = np.asarray(self.formation_offsets, dtype=np.float64)
+        if states.ndim != 2 or states.shape[1] != 4 or states.shape[0] < 2:
+            raise ValueError(
+                "Scenario.initial_states must be a list of at least 2 (x, y, heading, speed) "
+                f"tuples, got shape {states.shape}"
+            )
+        if not np.all(np.isfinite(states)):
+            raise ValueError("Scenario.initial_states must be finite")
+        if offsets.shape != (states.shape[0], 2):
+            raise ValueError(
+                f"Scenario.formation_offsets must hold one (x, y) per UAV "
+                f"({states.shape[0]}), got shape {offsets.shape}"
+            )
+        if not np.allclose(offsets.mean(axis=0), 0.0, atol=1e-9):
+            raise ValueError(
+                "Scenario.formation_offsets must have zero mean (offsets are relative to the "
+                f"formation centre), got mean {offsets.mean(axis=0).tolist()}"
+            )
+        if self.reference not in REFERENCE_PATHS:
+            raise ValueError(
+                f"Scenario.reference must be one of {', '.join(sorted(REFERENCE_PATHS))}, "
+                f"got {self.reference!r}"
+            )
+        if self.reference_start is not None and (
+            len(self.reference_start) != 2
+            or not all(math.isfinite(c) for c in self.reference_start)
+        ):
+            raise ValueError(
+                f"Scenario.reference_start must be None or two finite numbers, "
+                f"got {self.reference_start!r}"
+            )
+        _check_range("period_s", self.period_s, low=0.0, low_open=True)
+        _check_int("horizon_steps", self.horizon_steps, 1, 10_000)
+        _check_int("n_steps", self.n_steps, 1, 10_000_000)
+        for field_name in ("accel_bounds", "turn_rate_bounds"):
+            lo, hi = getattr(self, field_name)
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+                raise ValueError(
+                    f"Scenario.{field_name} must be finite (lower, upper) with lower < upper, "
+                    f"got {(lo, hi)}"
+                )
+        _check_range("w_dst", self.w_dst, low=0.0)
+        _check_range("w_trj", self.w_trj, low=0.0)
+        _check_int("n_blocks", self.n_blocks, 1, self.horizon_steps)
+        _check_range("eps_p", self.eps_p, low=0.0)
+        _check_range("eps_o", self.eps_o, low=0.0)
+        _check_range("eta", self.eta, low=0.0, high=1.0, low_open=True)
+        if self.trigger_lookahead_steps is not None:
+            _check_int(
+                "trigger_lookahead_steps", self.trigger_lookahead_steps, 0, self.horizon_steps
+            )
+        _check_range("settle_time_s", self.settle_time_s, low=0.0)
+        _check_int("rk4_substeps", self.rk4_substeps, 1, 1000)
+
+    @property
+    def n_uav(self) -> int:
+        """Number of UAVs."""
+        return len(self.initial_states)
+
+    @property
+    def horizon_s(self) -> float:
+        """Prediction horizon Tp in seconds."""
+        return self.horizon_steps * self.period_s
+
+    @property
+    def trigger_lookahead(self) -> int:
+        """Predicted periods after t_c at which conditions (15)-(16) are checked."""
+        if self.trigger_lookahead_steps is None:
+            return self.horizon_steps
+        return self.trigger_lookahead_steps
+
+    @property
+    def reference_path(self) -> ReferencePath:
+        """The :class:`ReferencePath` named by ``reference``."""
+        return REFERENCE_PATHS[self.reference]
+
+    @property
+    def control_lower(self) -> np.ndarray:
+        """``[a_min, omega_min]``."""
+        return np.array([self.accel_bounds[0], self.turn_rate_bounds[0]])
+
+    @property
+    def control_upper(self) -> np.ndarray:
+        """``[a_max, omega_max]``."""
+        return np.array([self.accel_bounds[1], self.turn_rate_bounds[1]])
+
+    def initial_state_array(self) -> np.ndarray:
+        """Initial states as an ``(N, 4)`` array."""
+        return np.asarray(self.initial_states, dtype=np.float64)
+
+    def reference_at(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Reference centre positions ``(T, 2)`` and headings ``(T,)`` at ``times``."""
+        start = self.reference_start
+        if start is None:
+            start = tuple(self.initial_state_array()[:, :2].mean(axis=0))
+        return self.reference_path.evaluate(times, start)
+
+    def desired_offsets(self, headings: np.ndarray) -> np.ndarray:
+        """World-frame offsets of every UAV from the centre: ``(T, N, 2)``."""
+        offsets = np.asarray(self.formation_offsets, dtype=np.float64)
+        headings = np.atleast_1d(headings)
+        if self.formation_frame == FormationFrame.WORLD:
+            return np.broadcast_to(offsets, (headings.size, *offsets.shape)).copy()
+        cos, sin = np.cos(headings)[:, None], np.sin(headings)[:, None]
+        return np.stack(
+            (cos * offsets[:, 0] - sin * offsets[:, 1], sin * offsets[:, 0] + cos * offsets[:, 1]),
+            axis=-1,
+        )
+
+    def desired_distances(self) -> np.ndarray:
+        """Desired distance between every pair of UAVs: ``(N, N)``."""
+        offsets = np.asarray(self.formation_offsets, dtype=np.float64)
+        return np.linalg.norm(offsets[:, None, :] - offsets[None, :, :], axis=-1)
+
+    def with_overrides(self, **overrides: Any) -> Scenario:
+        """A copy with fields replaced (validated); unknown fields are named in the error."""
+        names = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(overrides) - names)
+        if unknown:
+            raise ValueError(
+                f"unknown scenario field(s) {', '.join(unknown)}; "
+                f"fields: {', '.join(sorted(names))}"
+            )
+        return dataclasses.replace(self, **overrides)
+
+
+def _coerce_enums(obj: Any) -> None:
+    """Accept an enum field given as its string value (as the CLI and TOML give it)."""
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        kind = hints.get(f.name)
+        value = getattr(obj, f.name)
+        if isinstance(kind, type) and issubclass(kind, enum.Enum) and not isinstance(value, kind):
+            try:
+                object.__setattr__(obj, f.name, kind(value))
+            except ValueError:
+                allowed = ", ".join(m.value for m in kind)
+                raise ValueError(
+                    f"{type(obj).__name__}.{f.name} must be one of {allowed}, got {value!r}"
+                ) from None
+
+
+def _check_range(
+    name: str,
+    value: float,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+) -> None:
+    ok = isinstance(value, int | float) and math.isfinite(value)
+    if ok and low is not None:
+        ok = value > low if low_open else value >= low
+    if ok and high is not None:
+        ok = value <= high
+    if not ok:
+        lo = "-inf" if low is None else f"{low}"
+        hi = "inf" if high is None else f"{high}"
+        bracket = "(" if low_open else "["
+        raise ValueError(f"Scenario.{name} must be in {bracket}{lo}, {hi}], got {value!r}")
+
+
+def _check_int(name: str, value: int, low: int, high: int) -> None:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | np.integer)
+        or not low <= value <= high
+    ):
+        raise ValueError(f"Scenario.{name} must be an integer in [{low}, {high}], got {value!r}")
+
+
+PAPER = Scenario()
+
+SCENARIOS: dict[str, Scenario] = {
+    "paper": PAPER,
+    "paper-straight": dataclasses.replace(PAPER, name="paper-straight", reference="straight"),
+    "paper-s-curve": dataclasses.replace(PAPER, name="paper-s-curve", reference="s-curve"),
+}
+
+
+def get_scenario(name: str, **overrides: Any) -> Scenario:
+    """The scenario registered as ``name``, with fields replaced by ``overrides``."""
+    if name not in SCENARIOS:
+        raise KeyError(f"unknown scenario {name!r}; registered: {', '.join(sorted(SCENARIOS))}")
+    scenario = SCENARIOS[name]
+    return scenario.with_overrides(**overrides) if overrides else scenario

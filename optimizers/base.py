@@ -1,0 +1,409 @@
+"""The common optimiser interface.
+
+Every optimiser in formation-bench minimises a *batch* objective
+``f: (n, d) -> (n,)`` over a box ``[lower, upper]`` under a :class:`Budget`,
+with all randomness drawn from a passed :class:`numpy.random.Generator`, and
+returns an :class:`OptimizeResult` (the fields follow ``scipy.optimize``).
+
+Population methods subclass :class:`PopulationOptimizer` and implement a pure
+``init``/``step`` pair over an immutable state; the base class owns the loop,
+the evaluation counting and the budget, so that no optimiser can exceed its
+evaluation budget or forget to count an evaluation.
+"""
+
+from __future__ import annotations
+
+import abc
+import enum
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Generic, Protocol, TypeVar
+
+import numpy as np
+
+
+class BatchObjective(Protocol):
+    """A cost evaluated for a whole population in one call: ``(n, d) -> (n,)``."""
+
+    def __call__(self, x: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """Box constraints ``lower <= x <= upper`` of the decision vector."""
+
+    lower: np.ndarray
+    """Lower bound of every coordinate, shape ``(d,)``, finite."""
+    upper: np.ndarray
+    """Upper bound of every coordinate, shape ``(d,)``, finite and > ``lower``."""
+
+    def __post_init__(self) -> None:
+        lower = np.asarray(self.lower, dtype=np.float64).reshape(-1)
+        upper = np.asarray(self.upper, dtype=np.float64).reshape(-1)
+        if lower.shape != upper.shape or lower.size == 0:
+            raise ValueError(
+                f"Bounds: lower and upper must be non-empty and of equal length, "
+                f"got {lower.size} and {upper.size}"
+            )
+        if not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper))):
+            raise ValueError("Bounds: lower and upper must be finite")
+        if np.any(upper <= lower):
+            bad = int(np.argmax(upper <= lower))
+            raise ValueError(
+                f"Bounds: upper must exceed lower in every coordinate; coordinate {bad} has "
+                f"lower={lower[bad]} upper={upper[bad]}"
+            )
+        lower.setflags(write=False)
+        upper.setflags(write=False)
+        object.__setattr__(self, "lower", lower)
+        object.__setattr__(self, "upper", upper)
+
+    @property
+    def dim(self) -> int:
+        """Dimension ``d`` of the decision vector."""
+        return int(self.lower.size)
+
+    @property
+    def width(self) -> np.ndarray:
+        """``upper - lower`` per coordinate."""
+        return self.upper - self.lower
+
+    def contains(self, x: np.ndarray) -> bool:
+        """True when every row of ``x`` lies inside the box."""
+        x = np.atleast_2d(x)
+        return bool(np.all(x >= self.lower) and np.all(x <= self.upper))
+
+    def clip(self, x: np.ndarray) -> np.ndarray:
+        """Project ``x`` onto the box."""
+        return np.clip(x, self.lower, self.upper)
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """``n`` points drawn uniformly in the box."""
+        return self.lower + rng.random((n, self.dim)) * self.width
+
+
+@dataclass(frozen=True)
+class Budget:
+    """How much an optimiser may spend on one solve.
+
+    At least one of the two limits must be set; the solve stops at whichever
+    is reached first, and the evaluation count never exceeds
+    ``max_evaluations``.
+    """
+
+    max_evaluations: int | None = None
+    """Largest number of objective evaluations (rows evaluated), >= 1."""
+    max_iterations: int | None = None
+    """Largest number of iterations (generations) after initialisation, >= 0."""
+
+    def __post_init__(self) -> None:
+        if self.max_evaluations is None and self.max_iterations is None:
+            raise ValueError("Budget: set max_evaluations, max_iterations, or both")
+        if self.max_evaluations is not None and (
+            not isinstance(self.max_evaluations, int | np.integer) or self.max_evaluations < 1
+        ):
+            raise ValueError(
+                f"Budget.max_evaluations must be an integer >= 1, got {self.max_evaluations!r}"
+            )
+        if self.max_iterations is not None and (
+            not isinstance(self.max_iterations, int | np.integer) or self.max_iterations < 0
+        ):
+            raise ValueError(
+                f"Budget.max_iterations must be an integer >= 0, got {self.max_iterations!r}"
+            )
+
+
+@dataclass(frozen=True)
+class OptimizeResult:
+    """Outcome of one solve (field names as in ``scipy.optimize.OptimizeResult``)."""
+
+    x: np.ndarray
+    """Best point found, shape ``(d,)``."""
+    fun: float
+    """Its cost."""
+    nfev: int
+    """Objective evaluations used (rows evaluated)."""
+    nit: int
+    """Iterations completed after initialisation."""
+    success: bool
+    """True when the solve ended normally (budget reached or converged)."""
+    message: str
+    """Why the solve ended."""
+    history_nfev: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """Evaluations used at the end of initialisation and of every iteration."""
+    history_fun: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """Best cost so far at the same moments as ``history_nfev``."""
+    info: dict[str, Any] = field(default_factory=dict)
+    """Optimiser-specific extras (e.g. time spent clustering)."""
+
+
+_UNLIMITED = int(np.iinfo(np.int64).max)  # computed once: np.iinfo costs ~1 us per call
+
+
+class BudgetExhausted(RuntimeError):
+    """Raised when an objective call would exceed the evaluation budget."""
+
+
+class EvaluationCounter:
+    """Wraps a batch objective: counts rows, enforces the budget, keeps the best.
+
+    Non-finite costs (NaN, +-inf) are mapped to ``+inf`` so that they rank
+    below every finite cost in every comparison.
+    """
+
+    def __init__(self, objective: BatchObjective, dim: int, max_evaluations: int | None) -> None:
+        self._objective = objective
+        self._dim = dim
+        self.max_evaluations = max_evaluations
+        self.nfev = 0
+        self.objective_time_s = 0.0
+        self.best_x: np.ndarray | None = None
+        self.best_f = math.inf
+
+    @property
+    def remaining(self) -> int:
+        """Evaluations left (a large number when there is no evaluation limit)."""
+        if self.max_evaluations is None:
+            return _UNLIMITED
+        return self.max_evaluations - self.nfev
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != self._dim:
+            raise ValueError(f"objective input must have shape (n, {self._dim}), got {x.shape}")
+        n = x.shape[0]
+        if n == 0:
+            return np.zeros(0)
+        if n > self.remaining:
+            raise BudgetExhausted(f"{n} evaluations requested, {self.remaining} left")
+        start = time.perf_counter()
+        # np.array copies, so the caller never aliases a buffer the objective may reuse
+        f = np.array(self._objective(x), dtype=np.float64).reshape(-1)
+        self.objective_time_s += time.perf_counter() - start
+        if f.shape[0] != n:
+            raise ValueError(f"objective returned {f.shape[0]} costs for {n} points")
+        # argmin returns the first NaN if there is one, and -inf if there is one, so a
+        # finite minimum proves the only non-finite values are +inf (already the mapped
+        # value): the common all-finite case costs one reduction instead of three.
+        i = int(f.argmin())
+        if not math.isfinite(f[i]):
+            f[~np.isfinite(f)] = np.inf
+            i = int(f.argmin())
+        self.nfev += n
+        if f[i] < self.best_f or self.best_x is None:
+            self.best_f = float(f[i])
+            self.best_x = x[i].copy()
+        return f
+
+
+def check_rng(rng: object) -> np.random.Generator:
+    """Return ``rng`` if it is a Generator; refuse global-state or integer seeds."""
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(
+            f"rng must be a numpy.random.Generator (e.g. np.random.default_rng(seed)), "
+            f"got {type(rng).__name__}"
+        )
+    return rng
+
+
+def check_x0(x0: np.ndarray | None, bounds: Bounds) -> np.ndarray | None:
+    """Validate a warm start and project it onto the bounds."""
+    if x0 is None:
+        return None
+    x0 = np.asarray(x0, dtype=np.float64).reshape(-1)
+    if x0.size != bounds.dim:
+        raise ValueError(f"x0 must have {bounds.dim} entries, got {x0.size}")
+    if not np.all(np.isfinite(x0)):
+        raise ValueError("x0 must be finite")
+    return bounds.clip(x0)
+
+
+StateT = TypeVar("StateT")
+
+
+class Optimizer(abc.ABC):
+    """What the DMPC harness (and every benchmark) needs from an optimiser."""
+
+    @property
+    @abc.abstractmethod
+    def default_budget(self) -> Budget:
+        """The budget used when the caller gives none (the optimiser's own setting)."""
+
+    @abc.abstractmethod
+    def minimize(
+        self,
+        objective: BatchObjective,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        budget: Budget | None = None,
+        x0: np.ndarray | None = None,
+    ) -> OptimizeResult:
+        """Minimise ``objective`` over ``bounds``.
+
+        ``x0`` is a warm start (e.g. the shifted previous plan); an optimiser
+        that uses it must evaluate it, so the result is never worse than it.
+        """
+
+
+class PopulationOptimizer(Optimizer, Generic[StateT]):
+    """Base for population methods: a pure ``init``/``step`` over immutable state.
+
+    ``init`` and ``step`` evaluate only through the passed
+    :class:`EvaluationCounter` and must not ask it for more rows than
+    ``counter.remaining``; ``step`` returns a new state.
+    """
+
+    @abc.abstractmethod
+    def init(
+        self,
+        counter: EvaluationCounter,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        x0: np.ndarray | None,
+        max_iterations: int,
+    ) -> StateT:
+        """Initial state; ``max_iterations`` is the planned number of steps."""
+
+    @abc.abstractmethod
+    def step(
+        self,
+        state: StateT,
+        counter: EvaluationCounter,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        iteration: int,
+    ) -> StateT:
+        """One iteration; ``iteration`` counts from 1."""
+
+    @abc.abstractmethod
+    def evaluations_per_step(self) -> int:
+        """Rows one ``step`` evaluates in the usual case (used to plan iterations)."""
+
+    def planned_iterations(self, budget: Budget) -> int:
+        """Iterations the budget allows; schedules (e.g. BSO's logsig) use it as T_max."""
+        by_iterations = budget.max_iterations if budget.max_iterations is not None else None
+        by_evaluations = None
+        if budget.max_evaluations is not None:
+            initial = self.initial_evaluations()
+            by_evaluations = max(
+                0, (budget.max_evaluations - initial) // self.evaluations_per_step()
+            )
+        candidates = [c for c in (by_iterations, by_evaluations) if c is not None]
+        return int(min(candidates))
+
+    def initial_evaluations(self) -> int:
+        """Rows evaluated by ``init``; population size for most methods."""
+        return self.evaluations_per_step()
+
+    def minimize(
+        self,
+        objective: BatchObjective,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        budget: Budget | None = None,
+        x0: np.ndarray | None = None,
+    ) -> OptimizeResult:
+        rng = check_rng(rng)
+        budget = self.default_budget if budget is None else budget
+        x0 = check_x0(x0, bounds)
+        counter = EvaluationCounter(objective, bounds.dim, budget.max_evaluations)
+        max_iterations = self.planned_iterations(budget)
+        state = self.init(counter, bounds, rng, x0, max_iterations)
+        history_nfev = [counter.nfev]
+        history_fun = [counter.best_f]
+        nit = 0
+        message = "iteration budget reached"
+        iteration_limit = budget.max_iterations if budget.max_iterations is not None else math.inf
+        while nit < iteration_limit:
+            if counter.remaining <= 0:
+                message = "evaluation budget reached"
+                break
+            state = self.step(state, counter, bounds, rng, nit + 1)
+            nit += 1
+            history_nfev.append(counter.nfev)
+            history_fun.append(counter.best_f)
+        else:
+            if counter.remaining <= 0:
+                message = "evaluation budget reached"
+        assert counter.best_x is not None
+        return OptimizeResult(
+            x=counter.best_x,
+            fun=counter.best_f,
+            nfev=counter.nfev,
+            nit=nit,
+            success=True,
+            message=message,
+            history_nfev=np.asarray(history_nfev, dtype=np.int64),
+            history_fun=np.asarray(history_fun),
+            info={"objective_time_s": counter.objective_time_s, **self.result_info(state)},
+        )
+
+    def result_info(self, state: StateT) -> dict[str, Any]:
+        """Optimiser-specific extras copied into :attr:`OptimizeResult.info`."""
+        return {}
+
+
+# --- validation helpers for optimiser config dataclasses -------------------------------------
+# Shared so that every optimiser's __post_init__ reports a bad field the same way:
+# "<Class>.<field> must be ..., got <value>".
+
+EnumT = TypeVar("EnumT", bound=enum.Enum)
+
+
+def coerce_enum(owner: str, name: str, enum_type: type[EnumT], value: object) -> EnumT:
+    """``value`` as a member of ``enum_type``.
+
+    Accepts a member, its name in any case with '-' for '_' (the CLI passes
+    strings, e.g. ``replacement_map=tent``), or its value.
+    """
+    if isinstance(value, enum_type):
+        return value
+    if isinstance(value, str):
+        key = value.strip().upper().replace("-", "_")
+        if key in enum_type.__members__:
+            return enum_type[key]
+    if not isinstance(value, bool):
+        try:
+            return enum_type(value)
+        except (ValueError, TypeError):
+            pass
+    allowed = ", ".join(m.name.lower() for m in enum_type)
+    raise ValueError(f"{owner}.{name} must be one of {allowed}, got {value!r}")
+
+
+def check_int(owner: str, name: str, value: object, low: int, high: int | None = None) -> int:
+    """``value`` if it is an integer (not a bool) in ``[low, high]``, else ValueError."""
+    ok = isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
+    if ok and low <= value and (high is None or value <= high):  # type: ignore[operator]
+        return int(value)  # type: ignore[arg-type]
+    allowed = f">= {low}" if high is None else f"in [{low}, {high}]"
+    raise ValueError(f"{owner}.{name} must be an integer {allowed}, got {value!r}")
+
+
+def check_real(
+    owner: str,
+    name: str,
+    value: object,
+    low: float,
+    high: float = math.inf,
+    *,
+    low_open: bool = False,
+) -> float:
+    """``value`` as a float if finite and in ``[low, high]`` (``(low, high]`` if ``low_open``)."""
+    ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+        value, bool | np.bool_
+    )
+    if ok:
+        v = float(value)  # type: ignore[arg-type]
+        if math.isfinite(v) and (v > low if low_open else v >= low) and v <= high:
+            return v
+    interval = f"{'(' if low_open else '['}{low}, {high}{']' if math.isfinite(high) else ')'}"
+    raise ValueError(f"{owner}.{name} must be a finite number in {interval}, got {value!r}")
+
+
+def check_bool(owner: str, name: str, value: object) -> bool:
+    """``value`` if it is a bool, else ValueError."""
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    raise ValueError(f"{owner}.{name} must be True or False, got {value!r}")

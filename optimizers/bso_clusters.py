@@ -1,0 +1,91 @@
+"""BSO's clustering step: k-means of the population and each cluster's best member.
+
+Pure compiled functions like the rest of :mod:`optimizers.bso_ops` (which
+re-exports them): random numbers come in as arrays of uniforms.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from optimizers.clustering import lloyd_kmeans_kernel
+
+
+@njit(cache=True)
+def pick_index(u: float, n: int) -> int:
+    """Index in 0..n-1 from a uniform; the min guards against rounding up to n."""
+    return min(int(u * n), n - 1)
+
+
+@njit(cache=True)
+def distinct_indices(uniforms: np.ndarray, n: int) -> np.ndarray:
+    """``len(uniforms)`` distinct indices of 0..n-1 (partial Fisher-Yates shuffle)."""
+    perm = np.arange(n)
+    k = uniforms.shape[0]
+    for i in range(k):
+        j = i + pick_index(uniforms[i], n - i)
+        perm[i], perm[j] = perm[j], perm[i]
+    return perm[:k].copy()
+
+
+@njit(cache=True)
+def cluster_centres(
+    labels: np.ndarray, costs: np.ndarray, n_clusters: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(centre_index (m,), sizes (m,))``: the best member of each cluster and its size.
+
+    ``centre_index[j]`` is the population index of the lowest-cost member of
+    cluster ``j`` (the lowest index among equal costs), or -1 when the
+    cluster is empty.
+    """
+    centre = np.full(n_clusters, -1, dtype=np.int64)
+    sizes = np.zeros(n_clusters, dtype=np.int64)
+    for i in range(labels.shape[0]):
+        j = labels[i]
+        sizes[j] += 1
+        if centre[j] < 0 or costs[i] < costs[centre[j]]:
+            centre[j] = i
+    return centre, sizes
+
+
+@njit(cache=True)
+def cluster_population(
+    population: np.ndarray, costs: np.ndarray, uniforms: np.ndarray, max_iter: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """BSO's clustering step: ``(labels, centre_index, sizes)``.
+
+    k-means (Lloyd, at most ``max_iter`` updates) from ``m = len(uniforms)``
+    distinct members chosen by :func:`distinct_indices`, then
+    :func:`cluster_centres`. Fused into one kernel to save Python-level calls.
+    """
+    idx = distinct_indices(uniforms, population.shape[0])
+    labels, _ = lloyd_kmeans_kernel(population, population[idx], max_iter)
+    centre, sizes = cluster_centres(labels, costs, uniforms.shape[0])
+    return labels, centre, sizes
+
+
+@njit(cache=True)
+def cluster_population_packed(
+    population: np.ndarray, costs: np.ndarray, uniforms: np.ndarray, max_iter: int
+) -> np.ndarray:
+    """:func:`cluster_population` as one int64 array ``labels | centre_index | sizes``.
+
+    Returning one array instead of three saves two array conversions at the
+    Python boundary, which cost more than the arithmetic at this size.
+    """
+    labels, centre, sizes = cluster_population(population, costs, uniforms, max_iter)
+    return np.concatenate((labels, centre, sizes))
+
+
+@njit(cache=True)
+def nonempty(centre_index: np.ndarray) -> np.ndarray:
+    """Indices of the non-empty clusters (those with ``centre_index >= 0``), ascending."""
+    return np.flatnonzero(centre_index >= 0)
+
+
+@njit(cache=True)
+def random_centre(centre_index: np.ndarray, u: float) -> int:
+    """Population index of the centre of a non-empty cluster chosen uniformly by ``u``."""
+    used = nonempty(centre_index)
+    return centre_index[used[pick_index(u, used.shape[0])]]

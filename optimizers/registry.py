@@ -1,0 +1,67 @@
+"""A plain registry of named optimiser configurations.
+
+Variants are registered as named *configurations* of one class (an ablation
+is ``ModifiedBSO(chaos_replacement=False)`` under its own name), never as
+copies of code. Names are unique: registering a name twice is an error.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from optimizers.base import Optimizer
+
+
+@dataclass(frozen=True)
+class RegisteredOptimizer:
+    """One registry entry."""
+
+    name: str
+    """Unique name used on the command line and in results."""
+    optimizer: Optimizer
+    """The configured optimiser (an immutable dataclass instance)."""
+    description: str
+    """One line for ``formation-bench list``."""
+
+
+OPTIMIZERS: dict[str, RegisteredOptimizer] = {}
+
+
+def register(name: str, optimizer: Optimizer, description: str) -> Optimizer:
+    """Register ``optimizer`` under ``name``; refuses a name already taken."""
+    if not name or not name.replace("-", "").replace("_", "").isalnum():
+        raise ValueError(f"optimizer name must be alphanumeric with '-' or '_', got {name!r}")
+    if name in OPTIMIZERS:
+        raise ValueError(f"optimizer name {name!r} is already registered")
+    if not dataclasses.is_dataclass(optimizer):
+        raise TypeError(f"{name!r}: registered optimizers must be dataclass instances")
+    OPTIMIZERS[name] = RegisteredOptimizer(name, optimizer, description)
+    return optimizer
+
+
+def get_optimizer(name: str, **overrides: Any) -> Optimizer:
+    """The optimiser registered as ``name``, with config fields replaced by ``overrides``.
+
+    Unknown names and unknown fields raise ``KeyError``/``ValueError`` naming
+    the allowed values; field values are validated by the dataclass itself.
+    """
+    if name not in OPTIMIZERS:
+        raise KeyError(f"unknown optimizer {name!r}; registered: {', '.join(sorted(OPTIMIZERS))}")
+    optimizer = OPTIMIZERS[name].optimizer
+    if not overrides:
+        return optimizer
+    fields = {f.name for f in dataclasses.fields(optimizer)}  # type: ignore[arg-type]
+    unknown = sorted(set(overrides) - fields)
+    if unknown:
+        raise ValueError(
+            f"unknown field(s) {', '.join(unknown)} for optimizer {name!r}; "
+            f"fields: {', '.join(sorted(fields))}"
+        )
+    return dataclasses.replace(optimizer, **overrides)  # type: ignore[type-var]
+
+
+def optimizer_names() -> list[str]:
+    """Registered names, sorted."""
+    return sorted(OPTIMIZERS)

@@ -1,0 +1,154 @@
+"""The compiled cost against eq. (14) as printed; plans, estimates and warm starts."""
+
+import math
+
+import numpy as np
+import pytest
+
+from mpc.cost import batch_cost, block_map, reference_cost
+from mpc.problem import (
+    LocalProblem,
+    Plan,
+    coasting_plan,
+    estimate_positions,
+    shifted_controls,
+)
+from mpc.scenario import PAPER, EstimateExtension
+
+
+def random_problem(rng, scenario):
+    horizon = scenario.horizon_steps
+    state = np.array(
+        [rng.normal(0, 20), rng.normal(0, 20), rng.uniform(-math.pi, math.pi), rng.uniform(5, 20)]
+    )
+    neighbours = rng.normal(0, 30, size=(scenario.n_uav - 1, horizon, 2))
+    desired = rng.normal(0, 10, size=(scenario.n_uav - 1, horizon, 2))
+    reference = rng.normal(0, 30, size=(horizon, 2))
+    return LocalProblem(scenario, 0, state, neighbours, desired, reference)
+
+
+@pytest.mark.parametrize(
+    ("n_blocks", "substeps", "w_dst", "w_trj"),
+    [(4, 1, 1.0, 1.0), (20, 1, 0.3, 2.5), (3, 3, 1.7, 0.0), (1, 2, 0.0, 1.0)],
+)
+def test_compiled_cost_matches_plain_eq14(n_blocks, substeps, w_dst, w_trj):
+    rng = np.random.default_rng(n_blocks + 10 * substeps)
+    scenario = PAPER.with_overrides(
+        n_blocks=n_blocks, rk4_substeps=substeps, w_dst=w_dst, w_trj=w_trj
+    )
+    for _ in range(5):
+        problem = random_problem(rng, scenario)
+        decisions = problem.bounds.sample(rng, 30)
+        compiled = problem(decisions)
+        plain = np.array(
+            [
+                reference_cost(
+                    d,
+                    problem.state,
+                    problem.block_of_step,
+                    scenario.period_s,
+                    substeps,
+                    problem.neighbour_positions,
+                    problem.desired_relative,
+                    problem.reference,
+                    w_dst,
+                    w_trj,
+                    scenario.n_uav,
+                )
+                for d in decisions
+            ]
+        )
+        np.testing.assert_allclose(compiled, plain, rtol=1e-9)
+
+
+def test_cost_is_zero_on_a_perfect_plan_and_positive_off_it():
+    scenario = PAPER.with_overrides(n_blocks=2)
+    state = np.array([0.0, 0.0, 0.0, 15.0])
+    decision = np.array([1.0, 0.0, -0.5, 0.1])
+    problem0 = LocalProblem(
+        scenario, 0, state, np.zeros((2, 20, 2)), np.zeros((2, 20, 2)), np.zeros((20, 2))
+    )
+    path = problem0.plan(decision, 0).states[1:, :2]
+    offsets = np.array([[5.0, 1.0], [-3.0, 4.0]])
+    neighbours = path[None] - offsets[:, None, :]
+    desired = np.broadcast_to(offsets[:, None, :], neighbours.shape).copy()
+    reference = (path + neighbours.sum(axis=0)) / 3
+    problem = LocalProblem(scenario, 0, state, neighbours, desired, reference)
+    costs = problem(np.stack([decision, decision + np.array([0.5, 0.0, 0.0, 0.0])]))
+    assert costs[0] == pytest.approx(0.0, abs=1e-20)
+    assert costs[1] > 1.0
+
+
+def test_block_map_and_decision_round_trip():
+    np.testing.assert_array_equal(block_map(20, 4), np.repeat(np.arange(4), 5))
+    np.testing.assert_array_equal(block_map(5, 2), [0, 0, 0, 1, 1])
+    problem = random_problem(np.random.default_rng(0), PAPER.with_overrides(n_blocks=4))
+    decision = np.array([1.0, 0.1, -2.0, 0.2, 3.0, -0.1, 0.0, 0.05])
+    controls = problem.controls(decision)
+    assert controls.shape == (20, 2)
+    np.testing.assert_array_equal(controls[5], [-2.0, 0.2])
+    np.testing.assert_allclose(problem.decision_from_controls(controls), decision)
+
+
+def test_batch_cost_input_shape_is_checked():
+    problem = random_problem(np.random.default_rng(0), PAPER)
+    with pytest.raises(ValueError, match="shape"):
+        problem(np.zeros((3, problem.dim + 1)))
+
+
+def make_plan(start_step=4):
+    controls = np.tile([0.5, 0.1], (20, 1))
+    state = np.array([0.0, 0.0, 0.3, 12.0])
+    from mpc.model import rollout
+
+    return Plan(start_step, controls, rollout(state, controls, 0.2, 1))
+
+
+def test_estimate_inside_plan_is_the_plan():
+    plan = make_plan(start_step=4)
+    estimate = estimate_positions(plan, 10, 15, 0.2, EstimateExtension.COAST)
+    np.testing.assert_array_equal(estimate, plan.states[6:21, :2])
+
+
+@pytest.mark.parametrize("rule", list(EstimateExtension))
+def test_estimate_extension_past_the_plan(rule):
+    plan = make_plan(start_step=4)
+    estimate = estimate_positions(plan, 10, 21, 0.2, rule)  # instants 10..30, plan ends at 24
+    np.testing.assert_array_equal(estimate[:15], plan.states[6:21, :2])
+    x, y, theta, v = plan.states[20]
+    beyond = np.arange(1, 7) * 0.2
+    if rule == EstimateExtension.HOLD:
+        expected = np.tile([x, y], (6, 1))
+    else:
+        expected = np.column_stack((x + v * np.cos(theta) * beyond, y + v * np.sin(theta) * beyond))
+    np.testing.assert_allclose(estimate[15:], expected, atol=1e-12)
+    with pytest.raises(ValueError, match="after"):
+        estimate_positions(plan, 3, 5, 0.2, rule)
+
+
+def test_shifted_controls_pad_with_the_last_control():
+    plan = make_plan(start_step=0)
+    controls = plan.controls.copy()
+    controls[-1] = [2.0, -0.2]
+    plan = Plan(0, controls, plan.states)
+    shifted = shifted_controls(plan, 3)
+    np.testing.assert_array_equal(shifted[:16], controls[3:19])
+    np.testing.assert_array_equal(shifted[16:], np.tile([2.0, -0.2], (4, 1)))
+
+
+def test_coasting_plan_keeps_speed_and_heading():
+    state = np.array([1.0, 2.0, 0.7, 13.0])
+    plan = coasting_plan(state, 0, PAPER)
+    np.testing.assert_allclose(plan.states[:, 2:], np.tile(state[2:], (21, 1)))
+    np.testing.assert_allclose(
+        plan.states[-1, :2], state[:2] + 13.0 * 4.0 * np.array([math.cos(0.7), math.sin(0.7)])
+    )
+
+
+def test_batch_cost_kernel_directly_against_single_rows():
+    problem = random_problem(np.random.default_rng(5), PAPER)
+    decisions = problem.bounds.sample(np.random.default_rng(6), 7)
+    together = problem(decisions)
+    one_by_one = np.concatenate([problem(decisions[i : i + 1]) for i in range(7)])
+    np.testing.assert_array_equal(together, one_by_one)
+    assert batch_cost is not None

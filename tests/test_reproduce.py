@@ -1,0 +1,60 @@
+"""``formation-bench reproduce`` end to end (both 240-instant runs, about 10 s)."""
+
+import json
+
+import pandas as pd
+
+from benchmarks.cli import main
+from benchmarks.paper import PAPER_FIGURES, comparison_rows, format_table
+
+
+def test_reproduce_writes_both_runs_and_the_table(tmp_path, capsys):
+    out = tmp_path / "reproduce"
+    assert main(["reproduce", "--out", str(out), "--seed", "4"]) == 0
+    printed = capsys.readouterr().out
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert [m["trigger"] for m in metrics] == [False, True]
+    assert all(
+        m["steps"] == 240 and m["seed"] == 4 and m["optimizer"] == "modified-bso" for m in metrics
+    )
+    assert metrics[0]["solves_per_uav"] == [240, 240, 240]
+    assert all(n < 240 for n in metrics[1]["solves_per_uav"])
+    trace = pd.read_parquet(out / "trace.parquet")
+    assert len(trace) == 2 * 241 * 3
+    assert set(trace["trigger"]) == {False, True}
+    for name in (
+        "fig3_trajectory_no_trigger.png",
+        "fig4_states_no_trigger.png",
+        "fig5_trajectory_trigger.png",
+        "fig6_states_trigger.png",
+        "fig7_solve_instants.png",
+    ):
+        assert (out / name).stat().st_size > 10_000
+    rows = comparison_rows(metrics)
+    assert len(rows) == len(PAPER_FIGURES)
+    assert format_table(rows) in printed
+    for row in rows:
+        assert row["holds"] == (row["measured"] <= row["paper"])
+
+
+def test_comparison_rows_read_the_right_metrics():
+    fake = [
+        {
+            "trigger": False,
+            "tracking_error_max_m": 1.3,
+            "distance_error_max_m": {"d12": 0.1, "d23": 0.2, "d31": 0.3},
+        },
+        {
+            "trigger": True,
+            "tracking_error_max_m": 1.0,
+            "distance_error_max_m": {"d12": 0.31, "d23": 0.3, "d31": 0.2},
+            "solves_per_uav": [161, 160, 10],
+        },
+    ]
+    holds = {(r["run"], r["figure"]): (r["measured"], r["holds"]) for r in comparison_rows(fake)}
+    assert holds[("without trigger", "tracking error max")] == (1.3, False)
+    assert holds[("without trigger", "d23 error max")] == (0.2, True)
+    assert holds[("without trigger", "d31 error max")] == (0.3, False)
+    assert holds[("with trigger", "d12 error max")] == (0.31, False)
+    assert holds[("with trigger", "UAV 1 solves (paper: 157)")] == (161, False)
+    assert holds[("with trigger", "UAV 2 solves (paper: 155)")] == (160, True)
