@@ -10,13 +10,13 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
-import typing
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from mpc.reference import REFERENCE_PATHS, ReferencePath
+from optimizers.base import check_int, check_real, coerce_enum
 
 
 class FormationFrame(enum.StrEnum):
@@ -102,7 +102,12 @@ class Scenario:
     """RK4 sub-steps per control period in prediction and plant, >= 1."""
 
     def __post_init__(self) -> None:
-        _coerce_enums(self)
+        owner = type(self).__name__
+        for name, enum_type in (
+            ("formation_frame", FormationFrame),
+            ("estimate_extension", EstimateExtension),
+        ):
+            object.__setattr__(self, name, coerce_enum(owner, name, enum_type, getattr(self, name)))
         states = np.asarray(self.initial_states, dtype=np.float64)
         offsets = np.asarray(self.formation_offsets, dtype=np.float64)
         if states.ndim != 2 or states.shape[1] != 4 or states.shape[0] < 2:
@@ -135,9 +140,9 @@ class Scenario:
                 f"Scenario.reference_start must be None or two finite numbers, "
                 f"got {self.reference_start!r}"
             )
-        _check_range("period_s", self.period_s, low=0.0, low_open=True)
-        _check_int("horizon_steps", self.horizon_steps, 1, 10_000)
-        _check_int("n_steps", self.n_steps, 1, 10_000_000)
+        check_real(owner, "period_s", self.period_s, 0.0, low_open=True)
+        check_int(owner, "horizon_steps", self.horizon_steps, 1, 10_000)
+        check_int(owner, "n_steps", self.n_steps, 1, 10_000_000)
         for field_name in ("accel_bounds", "turn_rate_bounds"):
             lo, hi = getattr(self, field_name)
             if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
@@ -145,18 +150,22 @@ class Scenario:
                     f"Scenario.{field_name} must be finite (lower, upper) with lower < upper, "
                     f"got {(lo, hi)}"
                 )
-        _check_range("w_dst", self.w_dst, low=0.0)
-        _check_range("w_trj", self.w_trj, low=0.0)
-        _check_int("n_blocks", self.n_blocks, 1, self.horizon_steps)
-        _check_range("eps_p", self.eps_p, low=0.0)
-        _check_range("eps_o", self.eps_o, low=0.0)
-        _check_range("eta", self.eta, low=0.0, high=1.0, low_open=True)
+        check_real(owner, "w_dst", self.w_dst, 0.0)
+        check_real(owner, "w_trj", self.w_trj, 0.0)
+        check_int(owner, "n_blocks", self.n_blocks, 1, self.horizon_steps)
+        check_real(owner, "eps_p", self.eps_p, 0.0)
+        check_real(owner, "eps_o", self.eps_o, 0.0)
+        check_real(owner, "eta", self.eta, 0.0, 1.0, low_open=True)
         if self.trigger_lookahead_steps is not None:
-            _check_int(
-                "trigger_lookahead_steps", self.trigger_lookahead_steps, 0, self.horizon_steps
+            check_int(
+                owner,
+                "trigger_lookahead_steps",
+                self.trigger_lookahead_steps,
+                0,
+                self.horizon_steps,
             )
-        _check_range("settle_time_s", self.settle_time_s, low=0.0)
-        _check_int("rk4_substeps", self.rk4_substeps, 1, 1000)
+        check_real(owner, "settle_time_s", self.settle_time_s, 0.0)
+        check_int(owner, "rk4_substeps", self.rk4_substeps, 1, 1000)
 
     @property
     def n_uav(self) -> int:
@@ -228,50 +237,6 @@ class Scenario:
                 f"fields: {', '.join(sorted(names))}"
             )
         return dataclasses.replace(self, **overrides)
-
-
-def _coerce_enums(obj: Any) -> None:
-    """Accept an enum field given as its string value (as the CLI and TOML give it)."""
-    hints = typing.get_type_hints(type(obj))
-    for f in dataclasses.fields(obj):
-        kind = hints.get(f.name)
-        value = getattr(obj, f.name)
-        if isinstance(kind, type) and issubclass(kind, enum.Enum) and not isinstance(value, kind):
-            try:
-                object.__setattr__(obj, f.name, kind(value))
-            except ValueError:
-                allowed = ", ".join(m.value for m in kind)
-                raise ValueError(
-                    f"{type(obj).__name__}.{f.name} must be one of {allowed}, got {value!r}"
-                ) from None
-
-
-def _check_range(
-    name: str,
-    value: float,
-    low: float | None = None,
-    high: float | None = None,
-    low_open: bool = False,
-) -> None:
-    ok = isinstance(value, int | float) and math.isfinite(value)
-    if ok and low is not None:
-        ok = value > low if low_open else value >= low
-    if ok and high is not None:
-        ok = value <= high
-    if not ok:
-        lo = "-inf" if low is None else f"{low}"
-        hi = "inf" if high is None else f"{high}"
-        bracket = "(" if low_open else "["
-        raise ValueError(f"Scenario.{name} must be in {bracket}{lo}, {hi}], got {value!r}")
-
-
-def _check_int(name: str, value: int, low: int, high: int) -> None:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | np.integer)
-        or not low <= value <= high
-    ):
-        raise ValueError(f"Scenario.{name} must be an integer in [{low}, {high}], got {value!r}")
 
 
 PAPER = Scenario()
