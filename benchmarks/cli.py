@@ -16,8 +16,8 @@ from typing import Any, NoReturn
 
 import pandas as pd
 
-from benchmarks.outputs import write_metrics, write_trace
-from benchmarks.paper import comparison_rows, format_table
+from benchmarks.outputs import write_metrics, write_text, write_trace
+from benchmarks.paper import comparison_rows, format_seed_table, format_table
 from benchmarks.runner import RunOutcome, run_closed_loop, write_figures, write_trigger_figure
 from mpc.reference import REFERENCE_PATHS
 from mpc.scenario import SCENARIOS, Scenario, get_scenario
@@ -153,15 +153,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_reproduce(args: argparse.Namespace) -> int:
-    start = time.perf_counter()
+def reproduce_one(seed: int, out: Path) -> list[dict[str, Any]]:
+    """Both paper runs (without, then with trigger) for one seed; writes outputs to ``out``."""
     scenario = get_scenario("paper")
     optimizer = get_optimizer(DEFAULT_OPTIMIZER)
-    out = Path(args.out)
     outcomes: list[RunOutcome] = []
     for trigger in (False, True):
         outcome = run_closed_loop(
-            scenario, DEFAULT_OPTIMIZER, optimizer, trigger=trigger, seed=args.seed
+            scenario, DEFAULT_OPTIMIZER, optimizer, trigger=trigger, seed=seed
         )
         outcomes.append(outcome)
         print(_summary(outcome.metrics), flush=True)
@@ -171,18 +170,34 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     write_figures(outcomes[0], out, "no_trigger", (3, 4))
     write_figures(outcomes[1], out, "trigger", (5, 6))
     write_trigger_figure(outcomes[1], out, "fig7_solve_instants.png")
-    rows = comparison_rows(metrics)
+    return metrics
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    out = Path(args.out)
+    seeds = list(dict.fromkeys(args.seeds))
+    settle = get_scenario("paper").settle_time_s
+    runs = {
+        seed: reproduce_one(seed, out if len(seeds) == 1 else out / f"seed{seed}") for seed in seeds
+    }
     print()
     print(
-        f"Paper scenario, {DEFAULT_OPTIMIZER}, seed {args.seed} "
-        f"(errors after the {scenario.settle_time_s:g} s settle time):"
+        f"Paper scenario, {DEFAULT_OPTIMIZER}, seed{'s' if len(seeds) > 1 else ''} "
+        f"{', '.join(map(str, seeds))} (errors after the {settle:g} s settle time):"
     )
-    print(format_table(rows))
-    held = sum(row["holds"] for row in rows)
-    print(f"{held} of {len(rows)} reported figures reached.")
+    if len(seeds) == 1:
+        rows = comparison_rows(runs[seeds[0]])
+        print(format_table(rows))
+        held = sum(row["holds"] for row in rows)
+        print(f"{held} of {len(rows)} reported figures reached.")
+    else:
+        table = format_seed_table({seed: comparison_rows(m) for seed, m in runs.items()})
+        print(table)
+        write_text(out / "summary.md", table + "\n")
     print(
-        f"wrote {out}/metrics.json, trace.parquet and figures fig3-fig7 "
-        f"({time.perf_counter() - start:.1f} s in all)"
+        f"wrote metrics.json, trace.parquet and figures fig3-fig7 to {out}"
+        f"{'/seed*' if len(seeds) > 1 else ''} ({time.perf_counter() - start:.1f} s in all)"
     )
     return 0
 
@@ -198,7 +213,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", default="results/reproduce", help="output folder (default: results/reproduce)"
     )
     reproduce.add_argument(
-        "--seed", type=_seed, default=0, help="run seed, integer >= 0 (default 0)"
+        "--seed",
+        "--seeds",
+        dest="seeds",
+        type=_seed,
+        nargs="+",
+        default=[0],
+        help="run seed(s), integers >= 0 (default 0); several seeds write DIR/seedN/ each "
+        "and a table of every figure over the seeds",
     )
     reproduce.set_defaults(func=cmd_reproduce)
 

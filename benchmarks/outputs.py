@@ -90,6 +90,11 @@ def write_metrics(path: Path, metrics: dict[str, Any] | list[dict[str, Any]]) ->
     atomic_write_bytes(path, (json.dumps(metrics, indent=2) + "\n").encode())
 
 
+def write_text(path: Path, text: str) -> None:
+    """Write a text file atomically."""
+    atomic_write_bytes(path, text.encode())
+
+
 def write_trace(path: Path, frame: pd.DataFrame) -> None:
     """Write a trace DataFrame as Parquet."""
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -77,3 +77,23 @@ def format_table(rows: list[dict[str, Any]]) -> str:
             f"{'yes' if row['holds'] else 'NO'}  {row['unit']}"
         )
     return "\n".join(lines)
+
+
+def format_seed_table(rows_by_seed: dict[int, list[dict[str, Any]]]) -> str:
+    """A Markdown table: every paper figure, its value at each seed, and on how many it holds."""
+    seeds = list(rows_by_seed)
+    first = rows_by_seed[seeds[0]]
+    header = ["run", "figure", "paper", *(f"seed {s}" for s in seeds), "holds on"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for k, row in enumerate(first):
+        values = [rows_by_seed[s][k] for s in seeds]
+        held = sum(v["holds"] for v in values)
+        cells = [
+            row["run"],
+            row["figure"],
+            f"<= {row['paper']:g} {row['unit']}",
+            *(f"{v['measured']:.3g}" + ("" if v["holds"] else " ✗") for v in values),
+            f"{held}/{len(seeds)}",
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)

@@ -58,3 +58,36 @@ def test_comparison_rows_read_the_right_metrics():
     assert holds[("with trigger", "d12 error max")] == (0.31, False)
     assert holds[("with trigger", "UAV 1 solves (paper: 157)")] == (161, False)
     assert holds[("with trigger", "UAV 2 solves (paper: 155)")] == (160, True)
+
+
+def test_seed_table_counts_holds_per_figure():
+    from benchmarks.paper import format_seed_table
+
+    def run(track, solves):
+        return [
+            {
+                "trigger": False,
+                "tracking_error_max_m": track,
+                "distance_error_max_m": {"d12": 0.1, "d23": 0.1, "d31": 0.1},
+            },
+            {
+                "trigger": True,
+                "tracking_error_max_m": 1.0,
+                "distance_error_max_m": {"d12": 0.1, "d23": 0.1, "d31": 0.1},
+                "solves_per_uav": solves,
+            },
+        ]
+
+    table = format_seed_table(
+        {
+            0: comparison_rows(run(1.0, [100, 100, 100])),
+            7: comparison_rows(run(1.3, [100, 170, 100])),
+        }
+    )
+    lines = table.splitlines()
+    assert lines[0].startswith("| run | figure | paper | seed 0 | seed 7 | holds on |")
+    tracking = next(line for line in lines if "without trigger | tracking" in line)
+    assert "| 1 | 1.3 ✗ | 1/2 |" in tracking
+    uav2 = next(line for line in lines if "UAV 2" in line)
+    assert uav2.endswith("| 100 | 170 ✗ | 1/2 |")
+    assert len(lines) == 2 + len(PAPER_FIGURES)
