@@ -109,9 +109,9 @@ def trigger_figure(frame: pd.DataFrame) -> plt.Figure:
         ax.vlines(times, row + 0.6, row + 1.4, lw=1.2, color=sns.color_palette("deep")[row % 10])
         ax.text(
             1.005,
-            (row + 1) / (len(uavs) + 1),
+            row + 1,
             f"{times.size}/{n_instants}",
-            transform=ax.transAxes,
+            transform=ax.get_yaxis_transform(),
             va="center",
             fontsize=9,
         )
