@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -68,6 +68,9 @@ class Trace:
     """``(T + 1, N, 2)`` desired world-frame offsets of every UAV from the centre."""
     wall_time_s: float
     """Wall time of the whole run, seconds."""
+    solve_failed: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
+    """``(T, N)`` whether a solve failed (``result.success`` False): the UAV then applied its
+    shifted previous plan (the warm start) instead of the result."""
 
 
 ProgressCallback = Callable[[int, int], None]
@@ -103,6 +106,7 @@ def simulate(
     solve_time = np.full((n_steps, n_uav), np.nan)
     nfev = np.zeros((n_steps, n_uav), dtype=np.int64)
     solve_cost = np.full((n_steps, n_uav), np.nan)
+    solve_failed = np.zeros((n_steps, n_uav), dtype=bool)
 
     plans: list[Plan] = [coasting_plan(states[0, i], 0, scenario) for i in range(n_uav)]
     for c in range(n_steps):
@@ -158,7 +162,11 @@ def simulate(
             )
             warm_start = problem.decision_from_controls(shifted_controls(plans[i], c))
             result = optimizer.minimize(problem, problem.bounds, rngs[i], budget, warm_start)
-            published[i] = problem.plan(result.x, c)
+            decision = result.x
+            if not result.success:  # a failed solve falls back to the shifted previous plan
+                decision = warm_start
+                solve_failed[c, i] = True
+            published[i] = problem.plan(decision, c)
             solve_time[c, i] = time.perf_counter() - solve_start
             solved[c, i] = True
             nfev[c, i] = result.nfev
@@ -187,4 +195,5 @@ def simulate(
         reference_heading=heading[: n_steps + 1],
         desired_offsets=offsets[: n_steps + 1],
         wall_time_s=time.perf_counter() - start_time,
+        solve_failed=solve_failed,
     )

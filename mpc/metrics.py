@@ -94,5 +94,6 @@ def compute_metrics(trace: Trace) -> dict[str, Any]:
         "solve_time_p95_s": float(np.percentile(solve_times, 95)),
         "solve_time_max_s": float(solve_times.max()),
         "nfev_total": int(trace.nfev.sum()),
+        "solve_failures": int(trace.solve_failed.sum()),
         "wall_time_s": float(trace.wall_time_s),
     }

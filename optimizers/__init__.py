@@ -58,3 +58,77 @@ register(
 )
 
 __all__ += ["ModifiedBSO"]
+
+# Shi's original BSO, the PSOs and the chaotic variants (issue 3): named configurations.
+from optimizers.chaos import ChaoticMap  # noqa: E402 (after the registrations above)
+from optimizers.cls_bso import ChaoticLocalSearchBSO  # noqa: E402 (after the registrations above)
+from optimizers.original_bso import OriginalBSO  # noqa: E402 (after the registrations above)
+from optimizers.pso import PSO  # noqa: E402 (after the registrations above)
+
+register(
+    "original-bso",
+    OriginalBSO(),
+    "Shi's (2011) BSO as published: k-means, random-point centre replacement, logsig N(0,1) step",
+)
+register(
+    "original-bso-range-step",
+    OriginalBSO(step_scale=0.1, step_relative_to_range=True),
+    "Shi's BSO with the modified BSO's step (0.1 x range instead of N(0, 1))",
+)
+register(
+    "cls-bso",
+    ChaoticLocalSearchBSO(),
+    "Shi's BSO + chaotic local search around the best idea (after CBSO, Yu et al. 2018)",
+)
+register(
+    "pso",
+    PSO(),
+    "Global-best PSO, inertia 0.9 -> 0.4, c1 = c2 = 2, velocity clamp 0.2 x range, clip",
+)
+register(
+    "pso-constriction",
+    PSO(inertia_start=0.7298, inertia_end=0.7298, c1=1.49618, c2=1.49618),
+    "Global-best PSO with Clerc-Kennedy constriction (chi = 0.7298, c1 = c2 = 1.49618)",
+)
+register(
+    "chaotic-pso",
+    PSO(chaotic_coefficients=True, chaotic_inertia=True),
+    "Chaotic PSO (after Alatas et al. 2009): logistic r1, r2 and chaotic inertia weight",
+)
+register(
+    "chaotic-pso-coefficients",
+    PSO(chaotic_coefficients=True),
+    "Chaotic PSO: logistic sequences for r1, r2 only (linear inertia 0.9 -> 0.4)",
+)
+register(
+    "chaotic-pso-inertia",
+    PSO(chaotic_inertia=True),
+    "Chaotic PSO: Feng et al.'s chaotic inertia weight only (uniform r1, r2)",
+)
+for _map in ChaoticMap:
+    if _map is not ChaoticMap.LOGISTIC:
+        register(
+            f"modified-bso-{_map.name.lower()}",
+            ModifiedBSO(replacement_map=_map, weight_map=_map),
+            f"Modified BSO with the {_map.name.lower()} map as f_rmap and f_hmap",
+        )
+del _map
+
+__all__ += ["PSO", "ChaoticLocalSearchBSO", "ChaoticMap", "OriginalBSO"]
+
+# Derivative-based baselines (issue 4): IPOPT via CasADi, and LTV-MPC QPs solved by OSQP.
+from optimizers.ipopt_solver import IpoptOptimizer  # noqa: E402 (after the registrations above)
+from optimizers.ltv_osqp import LtvOsqpOptimizer  # noqa: E402 (after the registrations above)
+
+register(
+    "ipopt",
+    IpoptOptimizer(),
+    "IPOPT (CasADi nlpsol) on eq. (14), single shooting, warm primal + dual start; baseline",
+)
+register(
+    "ltv-osqp",
+    LtvOsqpOptimizer(),
+    "Linear time-varying MPC: QP linearised about the shifted plan, OSQP, 1 SQP round; baseline",
+)
+
+__all__ += ["IpoptOptimizer", "LtvOsqpOptimizer"]

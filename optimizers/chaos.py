@@ -19,7 +19,8 @@ reaches 0 after about 53 iterations. Two defences are used:
   sequences are reproducible from their seeds alone.
 
 Adding a map: write its ``@njit`` function (input and output in (0, 1)), add
-a member to :class:`ChaoticMap`, and add its branch to :func:`raw_map`; the
+a member to :class:`ChaoticMap`, and add its branch to :func:`raw_map` and to
+:func:`_raw_pass_by_id` (the array version, see there why there are two); the
 guard, the vectorised helpers and every kernel that takes a map id then
 support it.
 """
@@ -31,6 +32,17 @@ from enum import IntEnum
 
 import numpy as np
 from numba import njit
+
+from optimizers.chaos_formulas import (
+    chebyshev_map,
+    circle_map,
+    gauss_map,
+    iterative_map,
+    piecewise_map,
+    sine_map,
+    singer_map,
+    sinusoidal_map,
+)
 
 EDGE = 1e-10
 """Iterates closer than this to 0 or 1 are re-injected (they would stall near an edge)."""
@@ -48,6 +60,22 @@ class ChaoticMap(IntEnum):
     """``4 x (1 - x)``."""
     TENT = 1
     """``mu x`` for ``x < 0.5`` else ``mu (1 - x)``, with ``mu =`` :data:`TENT_SLOPE`."""
+    SINE = 2
+    """``sin(pi x)``: the sine map ``(a / 4) sin(pi x)`` with a = 4."""
+    CHEBYSHEV = 3
+    """Order-4 Chebyshev map ``cos(4 arccos z)`` on ``z = 2x - 1``, rescaled: ``(2 z^2 - 1)^2``."""
+    CIRCLE = 4
+    """``x + b - (K / 2 pi) sin(2 pi x) mod 1`` with K = 2 pi, b = 0.2 (see ``circle_map``)."""
+    GAUSS = 5
+    """Gauss/mouse map ``1 / x mod 1``."""
+    ITERATIVE = 6
+    """Iterative map ``sin(a pi / z)``, a = 0.7, on ``z = 2x - 1`` in (-1, 1), rescaled."""
+    PIECEWISE = 7
+    """Piecewise linear chaotic map with P = 0.4 (uniform invariant density)."""
+    SINGER = 8
+    """``mu (7.86 x - 23.31 x^2 + 28.75 x^3 - 13.302875 x^4)`` with mu = 1.07."""
+    SINUSOIDAL = 9
+    """``a z^2 sin(pi z)``, a = 2.3, on its chaotic interval, rescaled (see ``sinusoidal_map``)."""
 
 
 @njit(cache=True)
@@ -96,6 +124,22 @@ def raw_map(map_id: int, x: float) -> float:
         return logistic_map(x)
     if map_id == ChaoticMap.TENT:
         return tent_map(x)
+    if map_id == ChaoticMap.SINE:
+        return sine_map(x)
+    if map_id == ChaoticMap.CHEBYSHEV:
+        return chebyshev_map(x)
+    if map_id == ChaoticMap.CIRCLE:
+        return circle_map(x)
+    if map_id == ChaoticMap.GAUSS:
+        return gauss_map(x)
+    if map_id == ChaoticMap.ITERATIVE:
+        return iterative_map(x)
+    if map_id == ChaoticMap.PIECEWISE:
+        return piecewise_map(x)
+    if map_id == ChaoticMap.SINGER:
+        return singer_map(x)
+    if map_id == ChaoticMap.SINUSOIDAL:
+        return sinusoidal_map(x)
     return math.nan
 
 
@@ -121,6 +165,56 @@ def iterate_scalar(map_id: int, x: float, n: int) -> float:
 
 
 @njit(cache=True)
+def _raw_pass_by_id(map_id: int, x: np.ndarray, scratch: np.ndarray) -> bool:
+    """``scratch = raw_map(map_id, x)`` entry-wise; True when any new value is degenerate.
+
+    The array counterpart of :func:`raw_map`, choosing the map once per
+    array: a loop over one map's formula vectorises, a loop over a ten-way
+    branch does not (several times slower for the logistic map). Passing the
+    map function as an argument would avoid the second list but disables
+    numba's on-disk cache.
+    """
+    n = x.shape[0]
+    if map_id == ChaoticMap.LOGISTIC:
+        for j in range(n):
+            scratch[j] = logistic_map(x[j])
+    elif map_id == ChaoticMap.TENT:
+        for j in range(n):
+            scratch[j] = tent_map(x[j])
+    elif map_id == ChaoticMap.SINE:
+        for j in range(n):
+            scratch[j] = sine_map(x[j])
+    elif map_id == ChaoticMap.CHEBYSHEV:
+        for j in range(n):
+            scratch[j] = chebyshev_map(x[j])
+    elif map_id == ChaoticMap.CIRCLE:
+        for j in range(n):
+            scratch[j] = circle_map(x[j])
+    elif map_id == ChaoticMap.GAUSS:
+        for j in range(n):
+            scratch[j] = gauss_map(x[j])
+    elif map_id == ChaoticMap.ITERATIVE:
+        for j in range(n):
+            scratch[j] = iterative_map(x[j])
+    elif map_id == ChaoticMap.PIECEWISE:
+        for j in range(n):
+            scratch[j] = piecewise_map(x[j])
+    elif map_id == ChaoticMap.SINGER:
+        for j in range(n):
+            scratch[j] = singer_map(x[j])
+    elif map_id == ChaoticMap.SINUSOIDAL:
+        for j in range(n):
+            scratch[j] = sinusoidal_map(x[j])
+    else:
+        raise ValueError("unknown chaotic map id")
+    degenerate = False
+    for j in range(n):
+        y = scratch[j]
+        degenerate |= (y <= EDGE) | (y >= 1.0 - EDGE) | (y == x[j]) | (y != y)
+    return degenerate
+
+
+@njit(cache=True)
 def step_inplace(map_id: int, x: np.ndarray, scratch: np.ndarray) -> None:
     """One guarded iteration of every entry of the 1-D array ``x``, in place.
 
@@ -129,17 +223,10 @@ def step_inplace(map_id: int, x: np.ndarray, scratch: np.ndarray) -> None:
     runs only when that pass saw a degenerate value (rare). ``scratch`` is
     work space of ``x``'s size.
     """
-    _check_map_id(map_id)
-    n = x.shape[0]
-    degenerate = False
-    for j in range(n):
-        y = raw_map(map_id, x[j])
-        scratch[j] = y
-        degenerate |= (y <= EDGE) | (y >= 1.0 - EDGE) | (y == x[j]) | (y != y)
-    if degenerate:
-        for j in range(n):
+    if _raw_pass_by_id(map_id, x, scratch):
+        for j in range(x.shape[0]):
             scratch[j] = guard(x[j], scratch[j])
-    for j in range(n):
+    for j in range(x.shape[0]):
         x[j] = scratch[j]
 
 

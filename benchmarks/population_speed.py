@@ -1,0 +1,205 @@
+"""Speed of every population optimiser on the paper problem, and against mealpy's one-point BSO.
+
+Run ``python -m benchmarks.population_speed`` (needs ``mealpy`` from the
+``bench`` extra for the last column). It records real per-UAV problems of the
+paper scenario (:func:`benchmarks.instants.record_instants`), then, for every
+registered population optimiser at its default budget with the loop's warm
+start:
+
+- the solve time, split into the cost evaluations and everything else (the
+  optimiser's own work, the evaluation counter, Python): this thread's CPU
+  time, which other processes on the machine do not inflate; for each problem
+  the fastest of ``--repeats`` identical solves (same seed), then the median
+  over the problems;
+- the time per evaluation, ``solve time / nfev``;
+- the same for mealpy's ``OriginalBSO`` (Shi's parameters, one point per
+  objective call) on the same problems in the same run, and the ratio.
+
+CPU times are steadier than wall-clock times on a shared machine (the wall
+time is reported too), but caches and memory bandwidth are still shared: keep
+the machine quiet for comparable numbers (``--json FILE`` keeps the figures).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.bbob import mealpy_original_bso, population_optimizers
+from benchmarks.instants import RecordedInstant, record_instants
+from benchmarks.runner import warm_up_kernels
+from mpc.scenario import get_scenario
+from optimizers import get_optimizer
+
+
+def paper_instants(steps: Sequence[int] = (5, 60, 150)) -> list[RecordedInstant]:
+    """Every UAV's problem at the given instants of the paper scenario (no trigger)."""
+    return record_instants(
+        get_scenario("paper"), get_optimizer("modified-bso"), list(steps), seed=1
+    )
+
+
+class CpuTimedObjective:
+    """A batch objective that adds up the CPU time of this thread spent inside ``problem``."""
+
+    def __init__(self, problem: Callable[[np.ndarray], np.ndarray]) -> None:
+        self.problem = problem
+        self.cpu_s = 0.0
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        start = time.thread_time()
+        costs = self.problem(x)
+        self.cpu_s += time.thread_time() - start
+        return costs
+
+
+def time_optimizer(name: str, instants: list[RecordedInstant], repeats: int) -> dict[str, Any]:
+    """CPU and wall time of ``name`` per solve, and the part spent in the objective.
+
+    Times are this thread's CPU time (``time.thread_time``), which does not
+    advance while other processes hold the cores, so the split is stable on a
+    shared machine; the objective's part counts only the time inside the
+    problem itself. ``counter_outside_share`` is the wall-clock split of
+    ``benchmarks.speed`` instead: the evaluation counter's objective time
+    (which includes the call into the objective) over the solve's wall time.
+    Every repeat of a problem uses the same seed and does the same work; per
+    problem the fastest repeat counts, then the median over the problems.
+    """
+    optimizer = get_optimizer(name)
+    first = instants[0]
+    optimizer.minimize(
+        first.problem, first.problem.bounds, np.random.default_rng(0), None, first.warm_start
+    )
+    solve, objective, wall, counter_share, nfev = [], [], [], [], []
+    for k, inst in enumerate(instants):
+        runs = []
+        for _ in range(repeats):
+            timed = CpuTimedObjective(inst.problem)
+            cpu_start, wall_start = time.thread_time(), time.perf_counter()
+            result = optimizer.minimize(
+                timed, inst.problem.bounds, np.random.default_rng(k), None, inst.warm_start
+            )
+            cpu = time.thread_time() - cpu_start
+            wall_s = time.perf_counter() - wall_start
+            runs.append((cpu, timed.cpu_s, wall_s, result.info["objective_time_s"]))
+        solve.append(min(r[0] for r in runs))
+        objective.append(min(r[1] for r in runs))
+        fastest = min(runs, key=lambda r: r[2])
+        wall.append(fastest[2])
+        counter_share.append(1.0 - fastest[3] / fastest[2])
+        nfev.append(result.nfev)
+    solve_s, objective_s = np.array(solve), np.array(objective)
+    return {
+        "optimizer": name,
+        "nfev": int(np.median(nfev)),
+        "solve_s": float(np.median(solve_s)),
+        "objective_s": float(np.median(objective_s)),
+        "outside_share": float(np.median(1.0 - objective_s / solve_s)),
+        "per_evaluation_s": float(np.median(solve_s / np.array(nfev))),
+        "wall_solve_s": float(np.median(wall)),
+        "counter_outside_share": float(np.median(counter_share)),
+    }
+
+
+def time_mealpy(
+    instants: list[RecordedInstant], evaluations: int, repeats: int = 2
+) -> dict[str, Any]:
+    """mealpy's OriginalBSO on the same problems: CPU time per evaluation (fastest repeat)."""
+    per_evaluation, solve = [], []
+    for k, inst in enumerate(instants):
+        problem = inst.problem
+        times = []
+        for _ in range(repeats):
+            start = time.thread_time()
+            _, nfev = mealpy_original_bso(
+                lambda s, p=problem: float(p(np.asarray(s)[None])[0]),
+                problem.bounds.lower,
+                problem.bounds.upper,
+                evaluations,
+                seed=k,
+            )
+            times.append(time.thread_time() - start)
+        solve.append(min(times))
+        per_evaluation.append(min(times) / nfev)
+    return {
+        "optimizer": "mealpy-OriginalBSO",
+        "nfev": evaluations,
+        "solve_s": float(np.median(solve)),
+        "per_evaluation_s": float(np.median(per_evaluation)),
+    }
+
+
+def measure(
+    names: Sequence[str] | None = None, repeats: int = 5, with_mealpy: bool = True
+) -> dict[str, Any]:
+    """Every figure of the tables; ``names`` defaults to every population optimiser."""
+    warm_up_kernels()
+    instants = paper_instants()
+    rows = [time_optimizer(n, instants, repeats) for n in (names or population_optimizers())]
+    results: dict[str, Any] = {
+        "machine": platform.platform(),
+        "python": platform.python_version(),
+        "decision_dim": instants[0].problem.dim,
+        "problems": len(instants),
+        "repeats": repeats,
+        "rows": rows,
+    }
+    if with_mealpy:
+        mealpy = time_mealpy(instants, evaluations=1300)
+        results["mealpy"] = mealpy
+        for row in rows:
+            row["mealpy_ratio"] = mealpy["per_evaluation_s"] / row["per_evaluation_s"]
+    return results
+
+
+def format_results(results: dict[str, Any]) -> str:
+    """Markdown table of :func:`measure`'s figures (CPU times; wall time for reference)."""
+    lines = [
+        "| optimiser | nfev | solve, CPU (ms) | cost evaluations, CPU (ms) | outside evaluations "
+        "| µs per evaluation | mealpy / this, per evaluation | solve, wall (ms) "
+        "| outside, counter's wall clock |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for row in results["rows"]:
+        ratio = f"{row['mealpy_ratio']:.0f}x" if "mealpy_ratio" in row else "-"
+        lines.append(
+            f"| {row['optimizer']} | {row['nfev']} | {1e3 * row['solve_s']:.2f} "
+            f"| {1e3 * row['objective_s']:.2f} | {100 * row['outside_share']:.0f} % "
+            f"| {1e6 * row['per_evaluation_s']:.2f} | {ratio} | {1e3 * row['wall_solve_s']:.2f} "
+            f"| {100 * row['counter_outside_share']:.0f} % |"
+        )
+    if "mealpy" in results:
+        m = results["mealpy"]
+        lines.append(
+            f"| {m['optimizer']} (one point per call) | {m['nfev']} | {1e3 * m['solve_s']:.1f} "
+            f"| - | - | {1e6 * m['per_evaluation_s']:.1f} | 1x | - | - |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.population_speed", description=__doc__.splitlines()[0]
+    )
+    parser.add_argument("--repeats", type=int, default=5, help="solves per problem (5)")
+    parser.add_argument("--optimizers", help="comma-separated names (default: all population)")
+    parser.add_argument("--no-mealpy", action="store_true", help="skip the mealpy comparison")
+    parser.add_argument("--json", type=Path, help="also write the figures to this JSON file")
+    args = parser.parse_args(argv)
+    names = args.optimizers.split(",") if args.optimizers else None
+    results = measure(names, args.repeats, not args.no_mealpy)
+    print(format_results(results))
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,248 @@
+"""The per-UAV problem of eq. (14) in CasADi symbols: one expression for every derivative path.
+
+The gradient baselines (:mod:`optimizers.ipopt_solver`, :mod:`optimizers.ltv_osqp`)
+need the problem that :class:`~mpc.problem.LocalProblem` evaluates numerically,
+written symbolically so that CasADi can differentiate it. This module writes it
+once:
+
+- :func:`simpson_substep` is the RK4 step of :mod:`mpc.model` (zero-order hold,
+  in its Simpson form: three sine/cosine pairs per sub-step);
+- :func:`stage_cost` is the integrand of eq. (14) **as printed** (the centre is
+  ``(p_i + sum_j p_hat_j) / N``), so it is a third, independent writing of the
+  cost beside the compiled :func:`mpc.cost.batch_cost` and the plain
+  :func:`mpc.cost.reference_cost`; a test checks all three agree;
+- :func:`horizon_cost` sums it with the same right-endpoint rectangle rule.
+
+The problem's numbers enter as one parameter vector (:func:`pack_parameters`):
+``[state (4), neighbour_positions (J, H, 2), desired_relative (J, H, 2),
+reference (H, 2)]`` flattened in C order, so that a function built once per
+:class:`ProblemShape` serves every UAV at every instant.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import casadi as ca
+import numpy as np
+
+if TYPE_CHECKING:  # mpc.problem imports optimizers.base: no run-time import here
+    from mpc.problem import LocalProblem
+
+STATE_DIM = 4
+CONTROL_DIM = 2
+
+
+@dataclass(frozen=True)
+class ProblemShape:
+    """Everything a symbolic problem depends on besides the parameter values.
+
+    Two :class:`~mpc.problem.LocalProblem` with equal shapes share their
+    CasADi functions and solvers; it is the key of the optimisers' caches.
+    """
+
+    horizon_steps: int
+    n_blocks: int
+    block_of_step: tuple[int, ...]
+    n_neighbours: int
+    n_uav: int
+    period_s: float
+    rk4_substeps: int
+    w_dst: float
+    w_trj: float
+
+    @classmethod
+    def of(cls, problem: LocalProblem) -> ProblemShape:
+        """The shape of ``problem``."""
+        scenario = problem.scenario
+        return cls(
+            horizon_steps=int(scenario.horizon_steps),
+            n_blocks=int(scenario.n_blocks),
+            block_of_step=tuple(int(b) for b in problem.block_of_step),
+            n_neighbours=int(problem.neighbour_positions.shape[0]),
+            n_uav=int(scenario.n_uav),
+            period_s=float(scenario.period_s),
+            rk4_substeps=int(scenario.rk4_substeps),
+            w_dst=float(scenario.w_dst),
+            w_trj=float(scenario.w_trj),
+        )
+
+    @property
+    def dim(self) -> int:
+        """Length of the decision vector ``[a_1, omega_1, ..., a_B, omega_B]``."""
+        return CONTROL_DIM * self.n_blocks
+
+    @property
+    def n_parameters(self) -> int:
+        """Length of the parameter vector of :func:`pack_parameters`."""
+        return STATE_DIM + 2 * 2 * self.n_neighbours * self.horizon_steps + 2 * self.horizon_steps
+
+
+def pack_parameters(problem: LocalProblem) -> np.ndarray:
+    """The parameter vector of ``problem``: state, estimates, desired offsets, reference."""
+    return np.concatenate(
+        (
+            np.asarray(problem.state, dtype=np.float64).reshape(-1),
+            np.asarray(problem.neighbour_positions, dtype=np.float64).reshape(-1),
+            np.asarray(problem.desired_relative, dtype=np.float64).reshape(-1),
+            np.asarray(problem.reference, dtype=np.float64).reshape(-1),
+        )
+    )
+
+
+@dataclass(frozen=True)
+class SymbolicParameters:
+    """The parameter vector's pieces as symbols."""
+
+    vector: ca.SX
+    """The whole vector, shape ``(n_parameters, 1)``."""
+    state: ca.SX
+    """Current state ``(4, 1)``."""
+    neighbour_positions: list[list[ca.SX]]
+    """``[j][k]``: estimated position ``(2, 1)`` of neighbour j at step k + 1."""
+    desired_relative: list[list[ca.SX]]
+    """``[j][k]``: desired ``p_i - p_j`` ``(2, 1)`` at step k + 1."""
+    reference: list[ca.SX]
+    """``[k]``: desired formation centre ``(2, 1)`` at step k + 1."""
+
+
+def symbolic_parameters(shape: ProblemShape) -> SymbolicParameters:
+    """A parameter vector symbol, sliced as :func:`pack_parameters` packs it."""
+    p = ca.SX.sym("p", shape.n_parameters)
+    horizon, n_nb = shape.horizon_steps, shape.n_neighbours
+    offset = STATE_DIM
+
+    def block(start: int) -> list[list[ca.SX]]:
+        return [
+            [
+                p[start + 2 * (j * horizon + k) : start + 2 * (j * horizon + k) + 2]
+                for k in range(horizon)
+            ]
+            for j in range(n_nb)
+        ]
+
+    neighbours = block(offset)
+    offset += 2 * n_nb * horizon
+    desired = block(offset)
+    offset += 2 * n_nb * horizon
+    reference = [p[offset + 2 * k : offset + 2 * k + 2] for k in range(horizon)]
+    return SymbolicParameters(p, p[:STATE_DIM], neighbours, desired, reference)
+
+
+def simpson_substep(z: ca.SX, u: ca.SX, h: float) -> ca.SX:
+    """One RK4 sub-step of length ``h`` under the held control ``u = [a, omega]``.
+
+    The same arithmetic as :func:`mpc.model.rk4_substep`: under a held control
+    heading and speed are affine in time, RK4's middle stages coincide and the
+    step is Simpson's rule on them.
+    """
+    x, y, theta, v = z[0], z[1], z[2], z[3]
+    a, omega = u[0], u[1]
+    theta_mid = theta + 0.5 * h * omega
+    v_mid = v + 0.5 * h * a
+    theta_end = theta + h * omega
+    v_end = v + h * a
+    dx = v * ca.cos(theta) + 4.0 * v_mid * ca.cos(theta_mid) + v_end * ca.cos(theta_end)
+    dy = v * ca.sin(theta) + 4.0 * v_mid * ca.sin(theta_mid) + v_end * ca.sin(theta_end)
+    return ca.vertcat(x + h * dx / 6.0, y + h * dy / 6.0, theta_end, v_end)
+
+
+def period_step(z: ca.SX, u: ca.SX, period: float, substeps: int) -> ca.SX:
+    """The state one control period later (``substeps`` RK4 sub-steps)."""
+    h = period / substeps
+    for _ in range(substeps):
+        z = simpson_substep(z, u, h)
+    return z
+
+
+def block_controls(decision: ca.SX, block: int) -> ca.SX:
+    """``[a, omega]`` of control block ``block`` of a decision vector."""
+    return decision[CONTROL_DIM * block : CONTROL_DIM * block + CONTROL_DIM]
+
+
+def rollout(shape: ProblemShape, state: ca.SX, decision: ca.SX) -> list[ca.SX]:
+    """Predicted states at steps 1..H of a decision vector (single shooting)."""
+    states = []
+    z = state
+    for k in range(shape.horizon_steps):
+        z = period_step(
+            z, block_controls(decision, shape.block_of_step[k]), shape.period_s, shape.rk4_substeps
+        )
+        states.append(z)
+    return states
+
+
+def stage_cost(shape: ProblemShape, position: ca.SX, params: SymbolicParameters, k: int) -> ca.SX:
+    """The integrand of eq. (14) at step k + 1, as printed.
+
+    ``w_dst * sum_j ||p_i - p_hat_j - p_ij^d||^2 + w_trj * ||(p_i + sum_j p_hat_j) / N - p_c^d||^2``
+    """
+    formation = 0
+    centre = position
+    for j in range(shape.n_neighbours):
+        error = position - params.neighbour_positions[j][k] - params.desired_relative[j][k]
+        formation = formation + ca.dot(error, error)
+        centre = centre + params.neighbour_positions[j][k]
+    tracking = centre / shape.n_uav - params.reference[k]
+    return shape.w_dst * formation + shape.w_trj * ca.dot(tracking, tracking)
+
+
+def horizon_cost(shape: ProblemShape, positions: list[ca.SX], params: SymbolicParameters) -> ca.SX:
+    """Eq. (14): the right-endpoint rectangle rule over steps 1..H."""
+    total = 0
+    for k, position in enumerate(positions):
+        total = total + shape.period_s * stage_cost(shape, position, params, k)
+    return total
+
+
+def cost_function(shape: ProblemShape) -> ca.Function:
+    """``cost(decision, p) -> J``: the whole problem as one CasADi function."""
+    params = symbolic_parameters(shape)
+    decision = ca.SX.sym("u", shape.dim)
+    states = rollout(shape, params.state, decision)
+    cost = horizon_cost(shape, [z[:2] for z in states], params)
+    return ca.Function("cost", [decision, params.vector], [cost], ["u", "p"], ["J"])
+
+
+def casadi_cost(problem: LocalProblem, decisions: np.ndarray) -> np.ndarray:
+    """Cost of every row of ``decisions`` through the CasADi expression (for tests)."""
+    shape = ProblemShape.of(problem)
+    decisions = np.atleast_2d(np.asarray(decisions, dtype=np.float64))
+    function = cost_function(shape).map(decisions.shape[0])
+    params = pack_parameters(problem)
+    values = function(decisions.T, np.tile(params[:, None], (1, decisions.shape[0])))
+    return np.asarray(values, dtype=np.float64).reshape(-1)
+
+
+def gradient_function(shape: ProblemShape) -> ca.Function:
+    """``gradient(decision, p) -> (J, dJ/du)``: the cost and its gradient in the decision."""
+    decision = ca.SX.sym("u", shape.dim)
+    params = symbolic_parameters(shape)
+    cost = cost_function(shape)(decision, params.vector)
+    return ca.Function(
+        "cost_gradient",
+        [decision, params.vector],
+        [cost, ca.gradient(cost, decision)],
+        ["u", "p"],
+        ["J", "g"],
+    )
+
+
+def projected_gradient(problem: LocalProblem, decision: np.ndarray, tol: float) -> np.ndarray:
+    """The cost's gradient projected on the box: zero at a local optimum (first-order KKT).
+
+    A coordinate within ``tol * width`` of a bound counts as on it: there only a
+    gradient pushing inwards (away from the bound) counts, as the bound's
+    multiplier absorbs the rest.
+    """
+    shape = ProblemShape.of(problem)
+    _, gradient = gradient_function(shape)(decision, pack_parameters(problem))
+    gradient = np.asarray(gradient, dtype=np.float64).reshape(-1)
+    lower, upper, width = problem.bounds.lower, problem.bounds.upper, problem.bounds.width
+    at_lower = decision - lower <= tol * width
+    at_upper = upper - decision <= tol * width
+    projected = gradient.copy()
+    projected[at_lower] = np.minimum(gradient[at_lower], 0.0)
+    projected[at_upper] = np.maximum(gradient[at_upper], 0.0)
+    return projected

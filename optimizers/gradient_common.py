@@ -1,0 +1,124 @@
+"""What the derivative-based baselines (``ipopt``, ``ltv-osqp``) share.
+
+They differ from the population optimisers in three ways that this module
+handles once:
+
+- they need the problem's parameters, not only a batch objective, so they
+  accept only a :class:`~mpc.problem.LocalProblem` (:func:`require_local_problem`);
+- they build a solver once per problem shape (and UAV) and keep it between
+  calls in a private cache that is dropped when the optimiser is pickled
+  (:class:`SolverCacheMixin`), so the sweep machinery can send them to worker
+  processes;
+- a solve that fails falls back to the warm start (the shifted previous plan)
+  and says so with ``success=False`` (:func:`fallback_result`); the closed loop
+  counts it in ``Trace.solve_failed``.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from optimizers.base import BatchObjective, Bounds, OptimizeResult, check_x0
+
+if TYPE_CHECKING:  # mpc.problem imports optimizers.base: imported when first needed
+    from mpc.problem import LocalProblem
+
+
+def require_local_problem(owner: str, objective: BatchObjective) -> LocalProblem:
+    """``objective`` if it is a :class:`LocalProblem`, else a TypeError saying why."""
+    from mpc.problem import LocalProblem
+
+    if not isinstance(objective, LocalProblem):
+        raise TypeError(
+            f"{owner} solves the DMPC problem of eq. (14) from its parameters and needs an "
+            f"mpc.problem.LocalProblem as the objective, got {type(objective).__name__}"
+        )
+    return objective
+
+
+def warm_start_of(problem: LocalProblem, bounds: Bounds, x0: np.ndarray | None) -> np.ndarray:
+    """The validated warm start projected onto the bounds; zero controls when none is given."""
+    x0 = check_x0(x0, bounds)
+    if x0 is None:
+        return bounds.clip(np.zeros(bounds.dim))
+    return x0
+
+
+class SolverCacheMixin:
+    """Solvers kept between calls in a private dict that is no dataclass field.
+
+    The built solvers live in the instance's ``__dict__`` but outside
+    :func:`dataclasses.fields`, so they never enter the configuration
+    (equality, hashing, ``repr``, the sweep's config hash); pickling (e.g. to a
+    sweep worker) and :func:`copy.deepcopy` drop them, and the copy rebuilds
+    its solvers on first use.
+    """
+
+    @property
+    def _solver_cache(self) -> dict[Any, Any]:
+        cache = self.__dict__.get("_solver_cache_dict")
+        if cache is None:
+            cache = {}
+            object.__setattr__(self, "_solver_cache_dict", cache)
+        return cache
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state.pop("_solver_cache_dict", None)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+
+
+def fallback_result(
+    x0: np.ndarray,
+    fun: float,
+    nfev: int,
+    nit: int,
+    message: str,
+    info: dict[str, Any],
+) -> OptimizeResult:
+    """A failed solve: the warm start, flagged ``success=False`` (the loop counts it)."""
+    return OptimizeResult(
+        x=x0.copy(),
+        fun=float(fun),
+        nfev=int(nfev),
+        nit=int(nit),
+        success=False,
+        message=message,
+        history_nfev=np.asarray([nfev], dtype=np.int64),
+        history_fun=np.asarray([fun]),
+        info={**info, "fallback": True},
+    )
+
+
+def shift_of(
+    problem: LocalProblem,
+    previous_decision: np.ndarray,
+    previous_states: np.ndarray,
+    x0: np.ndarray,
+) -> int | None:
+    """How many periods ago ``previous_decision`` was the plan that ``x0`` shifts, or None.
+
+    The closed loop warm-starts from the previous plan shifted by the periods
+    elapsed since it was computed (:func:`mpc.problem.shifted_controls`). When
+    the current state lies on that plan's predicted trajectory ``s`` periods
+    in, and shifting the plan by ``s`` gives ``x0``, the plan is this UAV's
+    previous solve in the same run, and quantities kept from that solve (dual
+    variables) belong to this one. Anything else (a new run, another UAV, a
+    failed solve in between) returns None, so a result never depends on what
+    the optimiser solved before unless that solve is the one being continued.
+    """
+    state = problem.state
+    horizon = previous_states.shape[0] - 1
+    tolerance = 1e-9 * (1.0 + float(np.abs(state).max()))
+    gaps = np.abs(previous_states[1:] - state).max(axis=1)
+    for s in np.flatnonzero(gaps <= tolerance) + 1:
+        controls = problem.controls(previous_decision)
+        index = np.minimum(s + np.arange(horizon), horizon - 1)
+        if np.abs(problem.decision_from_controls(controls[index]) - x0).max() <= 1e-12:
+            return int(s)
+    return None

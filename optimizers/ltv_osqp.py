@@ -1,0 +1,426 @@
+"""``ltv-osqp``: linear time-varying MPC, the problem of eq. (14) as a QP solved by OSQP.
+
+At each instant the model is linearised about the shifted previous plan ``u0``
+(the warm start ``x0`` the loop passes) and its predicted trajectory. The cost
+of eq. (14) is quadratic in the positions, so with linear dynamics it is a QP
+in the deviation ``du = u - u0``:
+
+``sparse``
+    variables ``[du (2B), dx_1 .. dx_H (4H)]``; equality rows
+    ``dx_{k+1} = A_k dx_k + B_k du_{b(k)}`` (``dx_0 = 0``: the current state is
+    given) and box rows ``lower - u0 <= du <= upper - u0``; ``P`` is constant
+    (the cost's Hessian in the positions), ``q`` is the cost's gradient at the
+    nominal positions, and ``A``'s values (``A_k``, ``B_k``) change every
+    instant on a fixed sparsity pattern.
+``condensed`` (default)
+    variables ``du`` only: the positions' sensitivities ``G = dp/du`` give the
+    dense ``P = G' H G`` (all of its upper triangle kept as entries) and
+    ``q = G' g``; ``A`` is the identity. Same solution, 10 variables instead of
+    90: on the paper scenario OSQP needs a third of the iterations and the
+    95th percentile of the solve time is 5-16 times lower (docs/gradient-baselines.md).
+
+Both are built from the CasADi expression of :mod:`optimizers.casadi_model`
+(one call returns every matrix value and vector of an instant; the function is
+built once per problem shape). Each UAV's QP is set up in OSQP once and then
+updated in place at every following instant with ``OSQP.update`` (vectors, and
+matrix values on the sparsity pattern fixed at setup: structural zeros are
+kept as explicit entries, so a value that happens to be zero at one instant
+never changes the pattern). The OSQP instance, with its warm start and step
+size, is kept while each call continues the plan the previous call returned,
+as in the closed loop; a call that does not (the first of a run, one after a
+failed solve, a problem out of sequence) sets up a fresh one, so a run never
+depends on what the optimiser solved before it.
+
+After the QP, the true cost is evaluated at ``u0 + alpha du`` for
+``alpha in (1, 1/2, 1/4)`` (one batch call of the compiled cost) and the best
+point is accepted if it improves on the current one; ``sqp_iterations > 1``
+re-linearises about the accepted point and repeats (a fixed-count SQP with a
+backtracking line search). The result is never worse than the warm start.
+
+If the first QP is not solved (OSQP status other than ``solved``, e.g. its
+iteration limit), the warm start is returned with ``success=False``: the loop
+applies it and counts the failure. ``nfev`` counts one per linearisation (the
+cost, its gradient and the Jacobians in one CasADi evaluation) plus every row
+of the compiled cost (the warm start and the line-search points); OSQP's own
+iterations are in ``info``. The Generator is not used.
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import casadi as ca
+import numpy as np
+import osqp
+import scipy.sparse as sp
+
+from mpc.model import rollout as numeric_rollout
+from optimizers.base import (
+    BatchObjective,
+    Bounds,
+    Budget,
+    Optimizer,
+    OptimizeResult,
+    check_bool,
+    check_int,
+    check_real,
+    coerce_enum,
+)
+from optimizers.casadi_model import (
+    STATE_DIM,
+    ProblemShape,
+    block_controls,
+    horizon_cost,
+    pack_parameters,
+    period_step,
+    rollout,
+    symbolic_parameters,
+)
+from optimizers.gradient_common import (
+    SolverCacheMixin,
+    fallback_result,
+    require_local_problem,
+    shift_of,
+    warm_start_of,
+)
+
+if TYPE_CHECKING:  # mpc.problem imports optimizers.base: no run-time import here
+    from mpc.problem import LocalProblem
+
+LINE_SEARCH_STEPS = np.array([1.0, 0.5, 0.25])
+"""Step lengths tried along each QP direction (one batch evaluation of the true cost)."""
+
+
+class QPForm(enum.StrEnum):
+    """How the linearised problem is written as a QP."""
+
+    SPARSE = "sparse"
+    """Controls and states as variables, the linear dynamics as equality rows."""
+    CONDENSED = "condensed"
+    """Controls only; the states eliminated through the sensitivities dp/du."""
+
+
+@dataclass
+class LtvFunctions:
+    """The CasADi function and constant QP data of one problem shape and form."""
+
+    form: QPForm
+    linearise: ca.Function
+    """``(u0, p) -> (matrix values, q)``: A's nonzeros (sparse) or P's (condensed)."""
+    P: sp.csc_matrix
+    """P with its fixed pattern (upper triangle); constant for the sparse form."""
+    A: sp.csc_matrix
+    """A with its fixed pattern; constant (the identity) for the condensed form."""
+    n_dynamics_rows: int
+    """Rows of A before the box rows on ``du`` (the equality rows of the sparse form)."""
+    dim: int
+    """Length of ``du``: the first variables of the QP."""
+    build_time_s: float
+
+    def bounds_vectors(self, bounds: Bounds, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``l`` and ``u`` of an instant: zero on the dynamics rows, the shifted box on ``du``."""
+        zeros = np.zeros(self.n_dynamics_rows)
+        return (
+            np.concatenate((zeros, bounds.lower - u0)),
+            np.concatenate((zeros, bounds.upper - u0)),
+        )
+
+
+def _csc(matrix: ca.SX, values: np.ndarray) -> sp.csc_matrix:
+    """A SciPy CSC matrix with ``matrix``'s CasADi pattern (CSC too) and ``values``."""
+    sparsity = matrix.sparsity()
+    return sp.csc_matrix(
+        (
+            np.asarray(values, dtype=np.float64).reshape(-1),
+            np.asarray(sparsity.row(), dtype=np.int64),
+            np.asarray(sparsity.colind(), dtype=np.int64),
+        ),
+        shape=(matrix.size1(), matrix.size2()),
+    )
+
+
+def _upper_dense(matrix: ca.SX) -> tuple[ca.SX, np.ndarray, np.ndarray]:
+    """Every upper-triangle entry of a square ``matrix`` in CSC order, zeros included."""
+    n = matrix.size1()
+    entries, rows, colind = [], [], [0]
+    for j in range(n):
+        for i in range(j + 1):
+            entries.append(matrix[i, j])
+            rows.append(i)
+        colind.append(len(rows))
+    return ca.vertcat(*entries), np.asarray(rows), np.asarray(colind)
+
+
+def build_functions(shape: ProblemShape, form: QPForm) -> LtvFunctions:
+    """Linearisation function and QP patterns of ``shape`` in ``form``."""
+    start = time.perf_counter()
+    params = symbolic_parameters(shape)
+    u = ca.SX.sym("u", shape.dim)
+    horizon = shape.horizon_steps
+    nominal = rollout(shape, params.state, u)  # states 1..H along u
+    dim = shape.dim
+    if form == QPForm.SPARSE:
+        x = ca.SX.sym("x", STATE_DIM, horizon)
+        gaps = []
+        previous = params.state
+        for k in range(horizon):
+            control = block_controls(u, shape.block_of_step[k])
+            gaps.append(
+                x[:, k] - period_step(previous, control, shape.period_s, shape.rk4_substeps)
+            )
+            previous = x[:, k]
+        variables = ca.vertcat(u, ca.vec(x))
+        rows = ca.vertcat(*gaps, u)  # dynamics gaps, then the box rows on u
+        jacobian = ca.jacobian(rows, variables)
+        cost = horizon_cost(shape, [x[:2, k] for k in range(horizon)], params)
+        hessian, gradient = ca.hessian(cost, variables)
+        if ca.depends_on(hessian, ca.vertcat(variables, params.vector)):
+            raise AssertionError("the cost of eq. (14) must be quadratic in the positions")
+        upper = ca.triu(hessian)
+        P = _csc(upper, np.asarray(ca.Function("P", [], [upper])()["o0"].nonzeros()))
+        # evaluate the Jacobian and the gradient along the nominal trajectory of u
+        at_nominal = ca.Function(
+            "at", [u, x, params.vector], [ca.vertcat(*jacobian.nonzeros()), ca.densify(gradient)]
+        )
+        a_values, q = at_nominal(u, ca.horzcat(*nominal), params.vector)
+        linearise = ca.Function(
+            "ltv_sparse", [u, params.vector], [a_values, q], ["u0", "p"], ["Ax", "q"]
+        )
+        A = _csc(jacobian, np.ones(jacobian.nnz()))
+        n_dynamics_rows = STATE_DIM * horizon
+    else:
+        positions = ca.vertcat(*[z[:2] for z in nominal])
+        p_sym = ca.SX.sym("pos", 2, horizon)
+        cost = horizon_cost(shape, [p_sym[:, k] for k in range(horizon)], params)
+        hessian_p, gradient_p = ca.hessian(cost, ca.vec(p_sym))
+        sensitivity = ca.jacobian(positions, u)
+        at = ca.Function("at", [ca.vec(p_sym), params.vector], [hessian_p, gradient_p])
+        h_val, g_val = at(positions, params.vector)
+        p_matrix = sensitivity.T @ h_val @ sensitivity
+        p_values, p_rows, p_colind = _upper_dense(p_matrix)
+        q = sensitivity.T @ g_val
+        linearise = ca.Function(
+            "ltv_condensed", [u, params.vector], [p_values, ca.densify(q)], ["u0", "p"], ["Px", "q"]
+        )
+        P = sp.csc_matrix((np.ones(len(p_rows)), p_rows, p_colind), shape=(dim, dim))
+        A = sp.csc_matrix(sp.identity(dim, format="csc"))
+        n_dynamics_rows = 0
+    return LtvFunctions(form, linearise, P, A, n_dynamics_rows, dim, time.perf_counter() - start)
+
+
+@dataclass
+class _UavSolver:
+    """One UAV's OSQP instance and the plan its last call returned."""
+
+    solver: osqp.OSQP
+    setup_time_s: float
+    decision: np.ndarray | None = None
+    """The decision the last call returned (None until a call has finished)."""
+    states: np.ndarray | None = None
+    """Its predicted states ``(H + 1, 4)``."""
+
+
+@dataclass(frozen=True)
+class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
+    """Linear time-varying MPC: linearise about the shifted plan, solve the QP with OSQP."""
+
+    form: QPForm = QPForm.CONDENSED
+    """QP transcription: ``condensed`` (controls only) or ``sparse`` (states as variables too);
+    the default was chosen by measurement (docs/gradient-baselines.md)."""
+    sqp_iterations: int = 1
+    """Linearise-solve-line-search rounds per instant (>= 1) when the caller gives no
+    budget; a budget's ``max_iterations`` replaces it (its ``max_evaluations`` is ignored)."""
+    eps_abs: float = 1e-4
+    """OSQP's absolute tolerance (> 0; OSQP's default is 1e-3)."""
+    eps_rel: float = 1e-4
+    """OSQP's relative tolerance (> 0; OSQP's default is 1e-3)."""
+    max_iter: int = 20_000
+    """OSQP's iteration limit per QP (>= 1). OSQP's default 4000 is too few for some
+    start-up instants of the paper scenario (see docs/gradient-baselines.md)."""
+    polishing: bool | None = None
+    """OSQP's solution polishing (an active-set refinement after ADMM); None = on for the
+    sparse form, off for the condensed one (where OSQP prints a line whenever no bound is
+    active, even with ``verbose`` off)."""
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        put = object.__setattr__
+        put(self, "form", coerce_enum(owner, "form", QPForm, self.form))
+        put(self, "sqp_iterations", check_int(owner, "sqp_iterations", self.sqp_iterations, 1))
+        put(self, "max_iter", check_int(owner, "max_iter", self.max_iter, 1))
+        for name in ("eps_abs", "eps_rel"):
+            put(self, name, check_real(owner, name, getattr(self, name), 0.0, low_open=True))
+        if self.polishing is not None:
+            put(self, "polishing", check_bool(owner, "polishing", self.polishing))
+
+    @property
+    def default_budget(self) -> Budget:
+        return Budget(max_iterations=self.sqp_iterations)
+
+    def functions(self, shape: ProblemShape) -> LtvFunctions:
+        """The linearisation function of ``shape`` (built once, shared by all UAVs)."""
+        key = ("functions", shape, self.form)
+        functions = self._solver_cache.get(key)
+        if functions is None:
+            functions = build_functions(shape, self.form)
+            self._solver_cache[key] = functions
+        return functions
+
+    def settings(self) -> dict[str, Any]:
+        """The OSQP settings of this configuration."""
+        polishing = self.form == QPForm.SPARSE if self.polishing is None else self.polishing
+        return {
+            "verbose": False,
+            "eps_abs": self.eps_abs,
+            "eps_rel": self.eps_rel,
+            "max_iter": self.max_iter,
+            "polishing": polishing,
+            "warm_starting": True,
+        }
+
+    def _setup(
+        self,
+        functions: LtvFunctions,
+        matrix_values: np.ndarray,
+        q: np.ndarray,
+        lower: np.ndarray,
+        upper: np.ndarray,
+    ) -> _UavSolver:
+        start = time.perf_counter()
+        P, A = functions.P.copy(), functions.A.copy()
+        if functions.form == QPForm.SPARSE:
+            A.data = np.array(matrix_values, dtype=np.float64)
+        else:
+            P.data = np.array(matrix_values, dtype=np.float64)
+        solver = osqp.OSQP()
+        solver.setup(P, q, A, lower, upper, **self.settings())
+        return _UavSolver(solver, time.perf_counter() - start)
+
+    def minimize(
+        self,
+        objective: BatchObjective,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        budget: Budget | None = None,
+        x0: np.ndarray | None = None,
+    ) -> OptimizeResult:
+        problem = require_local_problem(type(self).__name__, objective)
+        budget = self.default_budget if budget is None else budget
+        rounds = (
+            self.sqp_iterations if budget.max_iterations is None else int(budget.max_iterations)
+        )
+        x0 = warm_start_of(problem, bounds, x0)
+        start = time.perf_counter()
+        shape = ProblemShape.of(problem)
+        functions = self.functions(shape)
+        params = pack_parameters(problem)
+        # This UAV's OSQP instance carries its warm start and step size from call to call. It is
+        # kept only when this call continues the plan the previous call returned (same run,
+        # same UAV); otherwise a fresh one is set up, so a run never depends on earlier runs.
+        key = ("osqp", shape, self.form, problem.uav)
+        entry: _UavSolver | None = self._solver_cache.pop(key, None)
+        if entry is not None and (
+            entry.decision is None
+            or entry.states is None
+            or shift_of(problem, entry.decision, entry.states, x0) is None
+        ):
+            entry = None
+        current = x0
+        current_cost = float(problem(x0[None])[0])
+        nfev = 1
+        history_nfev, history_fun = [nfev], [current_cost]
+        statuses: list[str] = []
+        qp_iterations: list[int] = []
+        qp_steps: list[np.ndarray] = []
+        qp_time = 0.0
+        fresh_setup = entry is None
+        message = "SQP rounds done"
+        nit = 0
+        failed = False
+        for round_ in range(rounds):
+            matrix_values, q = functions.linearise(current, params)
+            matrix_values = np.asarray(matrix_values, dtype=np.float64).reshape(-1)
+            q = np.asarray(q, dtype=np.float64).reshape(-1)
+            nfev += 1
+            lower, upper = functions.bounds_vectors(bounds, current)
+            if entry is None:
+                entry = self._setup(functions, matrix_values, q, lower, upper)
+            elif functions.form == QPForm.SPARSE:
+                entry.solver.update(q=q, l=lower, u=upper, Ax=matrix_values)
+            else:
+                entry.solver.update(q=q, l=lower, u=upper, Px=matrix_values)
+            result = entry.solver.solve(raise_error=False)
+            statuses.append(str(result.info.status))
+            qp_iterations.append(int(result.info.iter))
+            qp_time += float(result.info.run_time)
+            if result.info.status_val != osqp.SolverStatus.OSQP_SOLVED:
+                if round_ == 0:
+                    failed = True
+                else:
+                    message = f"stopped: OSQP {statuses[-1]} in round {round_ + 1}"
+                break
+            step = np.array(result.x[: functions.dim], dtype=np.float64)
+            qp_steps.append(step)
+            candidates = bounds.clip(current + LINE_SEARCH_STEPS[:, None] * step)
+            costs = problem(candidates)
+            nfev += len(LINE_SEARCH_STEPS)
+            nit += 1
+            best = int(np.argmin(costs))
+            if not costs[best] < current_cost:
+                history_nfev.append(nfev)
+                history_fun.append(current_cost)
+                message = f"no descent along the QP direction in round {round_ + 1}"
+                break
+            current, current_cost = candidates[best], float(costs[best])
+            history_nfev.append(nfev)
+            history_fun.append(current_cost)
+        info: dict[str, Any] = {
+            "form": self.form.value,
+            "osqp_status": statuses,
+            "osqp_iterations": qp_iterations,
+            "osqp_run_time_s": qp_time,
+            "qp_steps": qp_steps,
+            "osqp_setup": fresh_setup,
+            "osqp_setup_time_s": entry.setup_time_s if entry is not None and fresh_setup else 0.0,
+            "build_time_s": functions.build_time_s,
+        }
+        if entry is not None and not failed:
+            scenario = problem.scenario
+            entry.decision = current.copy()
+            entry.states = numeric_rollout(
+                problem.state, problem.controls(current), scenario.period_s, scenario.rk4_substeps
+            )
+            self._solver_cache[key] = entry
+        info["solve_time_s"] = time.perf_counter() - start
+        if failed:
+            return fallback_result(x0, current_cost, nfev, 0, f"OSQP: {statuses[-1]}", info)
+        return OptimizeResult(
+            x=current.copy(),
+            fun=current_cost,
+            nfev=nfev,
+            nit=nit,
+            success=True,
+            message=message,
+            history_nfev=np.asarray(history_nfev, dtype=np.int64),
+            history_fun=np.asarray(history_fun),
+            info=info,
+        )
+
+
+def qp_data(
+    optimizer: LtvOsqpOptimizer, problem: LocalProblem, u0: np.ndarray
+) -> tuple[sp.csc_matrix, np.ndarray, sp.csc_matrix, np.ndarray, np.ndarray]:
+    """``(P, q, A, l, u)`` of the QP the optimiser poses at ``u0`` (for tests and docs)."""
+    functions = optimizer.functions(ProblemShape.of(problem))
+    matrix_values, q = functions.linearise(u0, pack_parameters(problem))
+    P, A = functions.P.copy(), functions.A.copy()
+    values = np.asarray(matrix_values, dtype=np.float64).reshape(-1)
+    if functions.form == QPForm.SPARSE:
+        A.data = values
+    else:
+        P.data = values
+    lower, upper = functions.bounds_vectors(problem.bounds, u0)
+    return P, np.asarray(q, dtype=np.float64).reshape(-1), A, lower, upper

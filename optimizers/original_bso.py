@@ -1,0 +1,326 @@
+"""Shi's Brain Storm Optimization exactly as published (ICSI 2011), on the shared BSO operators.
+
+Shi, Y. (2011). Brain Storm Optimization Algorithm. In: Advances in Swarm
+Intelligence (ICSI 2011), LNCS 6728, pp. 303-309, Springer.
+
+Per iteration, following the paper's steps:
+
+2. **k-means** of the N ideas into m clusters (Lloyd's algorithm, started
+   from m distinct members drawn at random), re-run every iteration;
+3. the **best idea of each cluster is its centre**;
+4. with probability **p_5a** (0.2) a randomly chosen centre is replaced by a
+   **uniformly random point** of the box. The paper does not say whether
+   that point is evaluated or enters the population; here it replaces the
+   centre only as a *source of ideas* for this iteration: it is not
+   evaluated and the population slot of the old centre keeps its idea;
+5. every one of the N slots gets a new idea: with probability **p_6b** (0.8)
+   from **one cluster chosen with probability proportional to its size**
+   (p_6bi), its centre with probability **p_6biii** (0.4) or else a uniformly
+   random member; otherwise from **two distinct clusters** chosen uniformly,
+   both centres with probability **p_6c** (0.5) or else one random member of
+   each, mixed as **r A + (1 - r) B** with r uniform in (0, 1) per idea;
+6. the idea is moved by ``xi * N(0, 1)`` with an independent normal per
+   dimension and ``xi = logsig((0.5 T_max - t) / k) * rand``, where ``rand`` is
+   one uniform per idea and **k = 20**;
+7. **slot-wise greedy selection**: the new idea replaces the idea in the same
+   slot only when it is strictly better.
+
+Where public implementations deviate (and this one does not): fixed groups of
+consecutive indices instead of k-means, a cluster chosen at random instead of
+by size, a greedy step that compares the new idea with itself and so always
+accepts it, and 0.5 (A + B) instead of r A + (1 - r) B (all in mealpy's
+``OriginalBSO``), one ``xi`` per iteration instead of one per idea and no
+``xi`` at all for ideas from a random member (mealpy), or one normal value
+added to every dimension (other implementations). ``docs/optimizers.md``
+compares this implementation with mealpy's on BBOB functions.
+
+The paper says nothing about ideas that leave the box; they are clipped
+(``bound_handling``). The step ``N(0, 1)`` is in absolute units as published
+(``step_scale = 1``, ``step_relative_to_range = False``); on a box as narrow as
+the turn-rate bounds of the paper problem (+-0.25) that step is huge, which is
+why the modified BSO scales it by the range.
+
+The random numbers of one iteration are laid out as in
+:class:`~optimizers.modified_bso.ModifiedBSO` with all-centre weighting off,
+the random point taking the place of the chaotic seed ``cr(0)``: with
+``p_replace = 0`` and the same step settings the two produce identical runs,
+which the tests use to show that the ablation without both modifications is
+Shi's idea generation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+from numba import njit
+
+from optimizers.base import (
+    Bounds,
+    Budget,
+    EvaluationCounter,
+    PopulationOptimizer,
+    check_bool,
+    check_int,
+    check_real,
+    coerce_enum,
+)
+from optimizers.bound_handling import BoundHandling
+from optimizers.bso_ops import (
+    SHI_UNIFORMS_PER_IDEA,
+    cluster_population,
+    generate_ideas,
+    logsig_factor,
+    nonempty,
+    pick_index,
+)
+from optimizers.clustering import DEFAULT_MAX_ITER
+from optimizers.population import evaluate_and_select, initial_population, step_scale
+
+
+class BSOState(NamedTuple):
+    """Ideas and bookkeeping between iterations (arrays are never modified in place).
+
+    A NamedTuple rather than a frozen dataclass: it is built once per
+    iteration, and its constructor costs a third as much.
+    """
+
+    x: np.ndarray
+    """Ideas, shape (N, D)."""
+    f: np.ndarray
+    """Their costs (+inf for ideas not evaluated for lack of budget)."""
+    t_max: int
+    """Planned iterations: T_max of the logsig schedule."""
+    lower: np.ndarray
+    """Lower bounds (a private writable copy: numba compiles read-only arrays separately)."""
+    upper: np.ndarray
+    """Upper bounds (same reason)."""
+    scale: np.ndarray
+    """Per-coordinate multiplier of the N(0, 1) step, shape (D,)."""
+    replacements: int = 0
+    """Random-point centre replacements so far."""
+
+
+@njit(cache=True)
+def replace_centre(
+    population: np.ndarray, centre_index: np.ndarray, u: float, point: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Shi's step 4: the centre of a non-empty cluster chosen uniformly by ``u`` becomes ``point``.
+
+    Returns ``(sources, centres)``: the population with ``point`` appended as
+    row N, and a copy of ``centre_index`` in which the chosen cluster's centre
+    is that row. Members (the rows a random-member idea is drawn from) are
+    unchanged, since cluster membership is read from the labels of rows 0..N-1.
+    """
+    n, d = population.shape
+    sources = np.empty((n + 1, d))
+    sources[:n] = population
+    sources[n] = point
+    centres = centre_index.copy()
+    used = nonempty(centre_index)
+    centres[used[pick_index(u, used.shape[0])]] = n
+    return sources, centres
+
+
+def uniforms_per_iteration(n: int, d: int, n_clusters: int) -> int:
+    """Length of the uniforms :func:`shi_ideas` reads, without the resample values."""
+    return n_clusters + 2 + d + n * SHI_UNIFORMS_PER_IDEA + n
+
+
+@njit(cache=True)
+def shi_ideas(
+    x: np.ndarray,
+    f: np.ndarray,
+    u: np.ndarray,
+    normals: np.ndarray,
+    n_clusters: int,
+    kmeans_max_iter: int,
+    p_replace: float,
+    p_one_cluster: float,
+    p_one_centre: float,
+    p_two_centres: float,
+    factor: float,
+    scale: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    bound_mode: int,
+) -> tuple[np.ndarray, bool]:
+    """Steps 2-6 of Shi's BSO in one kernel: ``(N new ideas, whether a centre was replaced)``.
+
+    ``u`` holds, in this order: the k-means seeds (m), the p_5a draw, the
+    replaced cluster, the random point (D), the idea-selection uniforms
+    (N x 7, see :data:`~optimizers.bso_ops.SHI_UNIFORMS_PER_IDEA`), ``rand`` (N)
+    and, for RESAMPLE bound handling only, N x D resample values. ``normals``
+    is N x D. Fused so that an iteration costs one kernel call.
+    """
+    n, d = x.shape
+    m = n_clusters
+    point_at = m + 2
+    ideas_at = point_at + d
+    rand_at = ideas_at + n * SHI_UNIFORMS_PER_IDEA
+    end = rand_at + n
+    labels, centres, sizes = cluster_population(x, f, u[:m], kmeans_max_iter)
+    sources = x
+    replaced = u[m] < p_replace
+    if replaced:
+        point = lower + u[point_at:ideas_at] * (upper - lower)
+        sources, centres = replace_centre(x, centres, u[m + 1], point)
+    resample_uniforms = u[end:].reshape(n, d) if u.shape[0] > end else normals
+    ideas = generate_ideas(
+        sources,
+        labels,
+        centres,
+        sizes,
+        u[ideas_at:rand_at].reshape(n, SHI_UNIFORMS_PER_IDEA),
+        False,
+        0,
+        0,
+        False,
+        p_one_cluster,
+        p_one_centre,
+        p_two_centres,
+        factor,
+        u[rand_at:end],
+        normals,
+        scale,
+        lower,
+        upper,
+        bound_mode,
+        resample_uniforms,
+    )
+    return ideas, replaced
+
+
+@dataclass(frozen=True)
+class OriginalBSO(PopulationOptimizer[BSOState]):
+    """Shi's (2011) BSO: probabilities and slope as published; N and T_max for ~1300 evaluations."""
+
+    population_size: int = 30
+    """N, ideas per iteration (>= 2)."""
+    n_clusters: int = 5
+    """m, k-means clusters (1..N)."""
+    max_iterations: int = 40
+    """T_max when the caller gives no budget (>= 0); the default budget is N (T_max + 1)."""
+    slope: float = 20.0
+    """k, slope of the logsig step-size schedule (> 0)."""
+    p_replace: float = 0.2
+    """p_5a, probability per iteration of replacing a random centre by a random point ([0, 1])."""
+    p_one_cluster: float = 0.8
+    """p_6b, probability that an idea comes from one cluster rather than two ([0, 1])."""
+    p_one_centre: float = 0.4
+    """p_6biii, probability that a one-cluster idea starts from the centre ([0, 1])."""
+    p_two_centres: float = 0.5
+    """p_6c, probability that a two-cluster idea mixes the two centres ([0, 1])."""
+    step_scale: float = 1.0
+    """Multiplier of the N(0, 1) step (> 0); 1 as published."""
+    step_relative_to_range: bool = False
+    """Multiply ``step_scale`` by each coordinate's range (False as published)."""
+    bound_handling: BoundHandling = BoundHandling.CLIP
+    """How ideas outside the bounds are brought back (not specified by the paper)."""
+    kmeans_max_iter: int = DEFAULT_MAX_ITER
+    """Cap on Lloyd iterations per clustering (>= 1)."""
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        put = object.__setattr__
+        put(self, "population_size", check_int(owner, "population_size", self.population_size, 2))
+        n = self.population_size
+        put(self, "n_clusters", check_int(owner, "n_clusters", self.n_clusters, 1, n))
+        put(self, "max_iterations", check_int(owner, "max_iterations", self.max_iterations, 0))
+        put(self, "kmeans_max_iter", check_int(owner, "kmeans_max_iter", self.kmeans_max_iter, 1))
+        for name in ("slope", "step_scale"):
+            put(self, name, check_real(owner, name, getattr(self, name), 0.0, low_open=True))
+        for name in ("p_replace", "p_one_cluster", "p_one_centre", "p_two_centres"):
+            put(self, name, check_real(owner, name, getattr(self, name), 0.0, 1.0))
+        relative = check_bool(owner, "step_relative_to_range", self.step_relative_to_range)
+        put(self, "step_relative_to_range", relative)
+        mode = coerce_enum(owner, "bound_handling", BoundHandling, self.bound_handling)
+        put(self, "bound_handling", mode)
+
+    @property
+    def default_budget(self) -> Budget:
+        return Budget(max_iterations=self.max_iterations)
+
+    def evaluations_per_step(self) -> int:
+        return self.population_size
+
+    def result_info(self, state: BSOState) -> dict[str, Any]:
+        return {"random_replacements": state.replacements}
+
+    def init(
+        self,
+        counter: EvaluationCounter,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        x0: np.ndarray | None,
+        max_iterations: int,
+    ) -> BSOState:
+        """N uniform ideas (row 0 = ``x0`` if given), evaluated in one batch within the budget."""
+        x, f = initial_population(counter, bounds, rng, self.population_size, x0)
+        return BSOState(
+            x=x,
+            f=f,
+            t_max=int(max_iterations),
+            lower=np.array(bounds.lower),
+            upper=np.array(bounds.upper),
+            scale=step_scale(bounds, self.step_scale, self.step_relative_to_range),
+        )
+
+    def step(
+        self,
+        state: BSOState,
+        counter: EvaluationCounter,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        iteration: int,
+    ) -> BSOState:
+        ideas, replaced = self.propose(state, rng, iteration)
+        x, f = evaluate_and_select(counter, state.x, state.f, ideas)
+        return advance(state, x, f, replaced)
+
+    def propose(
+        self, state: BSOState, rng: np.random.Generator, iteration: int
+    ) -> tuple[np.ndarray, int]:
+        """Steps 2-6 of one iteration: ``(N new ideas, 1 if a centre was replaced else 0)``.
+
+        The ideas are not evaluated; :meth:`step` evaluates them and applies the
+        slot-wise greedy selection (step 7).
+        """
+        ideas, replaced = shi_ideas(*self.shi_arguments(state, rng, iteration))
+        return ideas, int(replaced)
+
+    def shi_arguments(
+        self, state: BSOState, rng: np.random.Generator, iteration: int
+    ) -> tuple[Any, ...]:
+        """The arguments of :func:`shi_ideas` for one iteration, drawing its random numbers.
+
+        Two Generator calls: the uniforms (layout in :func:`shi_ideas`) and the normals.
+        """
+        n, d = state.x.shape
+        resample = self.bound_handling is BoundHandling.RESAMPLE
+        n_uniform = uniforms_per_iteration(n, d, self.n_clusters) + (n * d if resample else 0)
+        return (
+            state.x,
+            state.f,
+            rng.random(n_uniform),
+            rng.standard_normal((n, d)),
+            self.n_clusters,
+            self.kmeans_max_iter,
+            self.p_replace,
+            self.p_one_cluster,
+            self.p_one_centre,
+            self.p_two_centres,
+            logsig_factor(float(iteration), float(state.t_max), self.slope),
+            state.scale,
+            state.lower,
+            state.upper,
+            int(self.bound_handling),
+        )
+
+
+def advance(state: BSOState, x: np.ndarray, f: np.ndarray, replaced: int) -> BSOState:
+    """The state after an iteration that left population ``(x, f)``."""
+    return BSOState(
+        x, f, state.t_max, state.lower, state.upper, state.scale, state.replacements + replaced
+    )

@@ -1,0 +1,78 @@
+"""Helpers shared by the population optimisers: the initial population and budget-truncated batches.
+
+Every population method starts the same way (``N`` uniform points, the warm
+start in row 0, one batch evaluation within the budget), and every one of
+them evaluates a batch of new points that the budget may cut short.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from optimizers.base import Bounds, EvaluationCounter
+from optimizers.bso_ops import greedy_select
+
+
+def initial_population(
+    counter: EvaluationCounter,
+    bounds: Bounds,
+    rng: np.random.Generator,
+    size: int,
+    x0: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``size`` uniform points in the box (row 0 = ``x0`` when given) and their costs.
+
+    Rows beyond the remaining evaluation budget are left unevaluated with
+    cost ``+inf``, so they lose every comparison.
+    """
+    points = bounds.sample(rng, size)
+    if x0 is not None:
+        points[0] = x0
+    costs = evaluate_prefix(counter, points)
+    return points, costs
+
+
+def evaluate_prefix(counter: EvaluationCounter, points: np.ndarray) -> np.ndarray:
+    """Costs of ``points``: the first ``counter.remaining`` rows evaluated, the rest ``+inf``."""
+    n = points.shape[0]
+    if counter.remaining >= n:  # the usual case: no copy, no padding
+        return counter(points)
+    costs = np.full(n, math.inf)
+    allowed = counter.remaining
+    if allowed > 0:
+        costs[:allowed] = counter(points[:allowed])
+    return costs
+
+
+def evaluate_and_select(
+    counter: EvaluationCounter, x: np.ndarray, f: np.ndarray, candidates: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Slot-wise greedy selection of ``candidates`` over ``(x, f)``, within the budget.
+
+    Only the first ``counter.remaining`` candidates are evaluated (and can win
+    their slot); returns new arrays, the inputs are untouched.
+    """
+    allowed = min(candidates.shape[0], counter.remaining)
+    if allowed <= 0:
+        return x, f
+    evaluated = candidates[:allowed]
+    new_x, new_f, _ = greedy_select(x, f, evaluated, counter(evaluated))
+    return new_x, new_f
+
+
+def step_scale(bounds: Bounds, scale: float, relative_to_range: bool) -> np.ndarray:
+    """Per-coordinate step multiplier: ``scale``, times the range when ``relative_to_range``."""
+    factor = bounds.width if relative_to_range else np.ones(bounds.dim)
+    return np.ascontiguousarray(scale * factor, dtype=np.float64)
+
+
+def progress(iteration: int, t_max: int) -> float:
+    """``(iteration - 1) / (t_max - 1)`` clipped to [0, 1]: 0 at the first iteration, 1 at the last.
+
+    0 throughout when ``t_max <= 1``. Schedules (inertia, search radius) use it.
+    """
+    if t_max <= 1:
+        return 0.0
+    return min(max((iteration - 1) / (t_max - 1), 0.0), 1.0)

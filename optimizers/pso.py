@@ -1,0 +1,228 @@
+"""Global-best particle swarm optimisation, with its inertia and chaotic variants as configurations.
+
+One class covers the registered PSOs:
+
+* **linearly decreasing inertia** (the default): ``w`` falls from 0.9 to 0.4
+  over the planned iterations, ``c1 = c2 = 2`` (Shi & Eberhart, "A modified
+  particle swarm optimizer", IEEE ICEC 1998; "Empirical study of particle
+  swarm optimization", CEC 1999);
+* **constriction** (``inertia_start = inertia_end = 0.7298``,
+  ``c1 = c2 = 1.49618``): Clerc & Kennedy's constriction factor chi = 0.7298
+  for phi = 4.1 in its equivalent inertia form (Clerc & Kennedy, "The particle
+  swarm - explosion, stability, and convergence in a multidimensional complex
+  space", IEEE TEC 6(1), 2002; the values of Eberhart & Shi, CEC 2000);
+* **chaotic PSO** (``chaotic_coefficients`` and/or ``chaotic_inertia``), after
+  Alatas, Akin & Ozer, "Chaos embedded particle swarm optimization
+  algorithms", Chaos, Solitons & Fractals 40(4), 2009, 1715-1734: the uniform
+  random coefficients ``r1``, ``r2`` are replaced by chaotic sequences (one
+  sequence per particle and coordinate, iterated once per iteration from
+  uniform seeds), and/or the inertia weight is made chaotic in the form of
+  Feng et al., "Chaotic inertia weight in particle swarm optimization",
+  ICICIC 2007: ``w = (w_start - w_end)(1 - s) + w_end z``, with ``s`` the
+  progress in [0, 1] and ``z`` a chaotic sequence.
+
+Velocities start at zero and are clamped per coordinate to
+``velocity_clamp * (upper - lower)``. Positions leaving the box are brought back
+by ``bound_handling`` (clip, reflect, or random re-initialisation of the
+offending coordinate); the velocity of a repaired coordinate becomes the step
+actually taken. Personal bests are updated only on strict improvement, so
+NaN/inf costs (mapped to +inf by the evaluation counter) never become a best.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from optimizers.base import (
+    Bounds,
+    Budget,
+    EvaluationCounter,
+    PopulationOptimizer,
+    check_bool,
+    check_int,
+    check_real,
+    coerce_enum,
+)
+from optimizers.bound_handling import BoundHandling
+from optimizers.chaos import ChaoticMap, apply_map
+from optimizers.population import evaluate_and_select, initial_population
+from optimizers.pso_ops import chaotic_inertia, linear_inertia, move_swarm, next_iterates
+
+
+class PSOState(NamedTuple):
+    """Swarm between iterations (arrays are never modified in place).
+
+    A NamedTuple rather than a frozen dataclass: it is built once per
+    iteration, and its constructor costs a third as much.
+    """
+
+    x: np.ndarray
+    """Positions, shape (N, D)."""
+    v: np.ndarray
+    """Velocities, shape (N, D)."""
+    best_x: np.ndarray
+    """Personal best positions, shape (N, D)."""
+    best_f: np.ndarray
+    """Personal best costs (+inf for particles not evaluated for lack of budget)."""
+    t_max: int
+    """Planned iterations (the inertia schedule's length)."""
+    lower: np.ndarray
+    """Lower bounds (a private writable copy for the kernels)."""
+    upper: np.ndarray
+    """Upper bounds."""
+    v_max: np.ndarray
+    """Velocity clamp per coordinate, shape (D,)."""
+    coefficients: np.ndarray
+    """Current chaotic ``r1`` and ``r2``, shape (2, N, D); empty unless chaotic coefficients."""
+    inertia_z: float
+    """Current value of the chaotic inertia sequence (unused unless chaotic inertia)."""
+
+
+@dataclass(frozen=True)
+class PSO(PopulationOptimizer[PSOState]):
+    """Global-best PSO; see the module docstring for the variants and their sources."""
+
+    population_size: int = 30
+    """N, particles (>= 2)."""
+    max_iterations: int = 40
+    """Iterations when the caller gives no budget (>= 0); the default budget is N (T + 1)."""
+    inertia_start: float = 0.9
+    """Inertia weight at the first iteration ([0, 2])."""
+    inertia_end: float = 0.4
+    """Inertia weight at the last planned iteration ([0, 2]); equal to start: constant."""
+    c1: float = 2.0
+    """Cognitive acceleration (towards the personal best) ([0, 5])."""
+    c2: float = 2.0
+    """Social acceleration (towards the global best) ([0, 5])."""
+    velocity_clamp: float = 0.2
+    """v_max as a fraction of each coordinate's range ((0, 2])."""
+    bound_handling: BoundHandling = BoundHandling.CLIP
+    """How positions outside the box are brought back: clip, reflect or resample."""
+    chaotic_coefficients: bool = False
+    """Use chaotic sequences of ``coefficient_map`` for r1 and r2 instead of uniforms."""
+    coefficient_map: ChaoticMap = ChaoticMap.LOGISTIC
+    """Chaotic map of r1 and r2."""
+    chaotic_inertia: bool = False
+    """Use Feng et al.'s chaotic inertia weight instead of the linear schedule."""
+    inertia_map: ChaoticMap = ChaoticMap.LOGISTIC
+    """Chaotic map of the inertia sequence."""
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        put = object.__setattr__
+        put(self, "population_size", check_int(owner, "population_size", self.population_size, 2))
+        put(self, "max_iterations", check_int(owner, "max_iterations", self.max_iterations, 0))
+        for name, high in (("inertia_start", 2.0), ("inertia_end", 2.0), ("c1", 5.0), ("c2", 5.0)):
+            put(self, name, check_real(owner, name, getattr(self, name), 0.0, high))
+        clamp = check_real(owner, "velocity_clamp", self.velocity_clamp, 0.0, 2.0, low_open=True)
+        put(self, "velocity_clamp", clamp)
+        for name in ("chaotic_coefficients", "chaotic_inertia"):
+            put(self, name, check_bool(owner, name, getattr(self, name)))
+        for name, enum_type in (
+            ("bound_handling", BoundHandling),
+            ("coefficient_map", ChaoticMap),
+            ("inertia_map", ChaoticMap),
+        ):
+            put(self, name, coerce_enum(owner, name, enum_type, getattr(self, name)))
+
+    @property
+    def default_budget(self) -> Budget:
+        return Budget(max_iterations=self.max_iterations)
+
+    def evaluations_per_step(self) -> int:
+        return self.population_size
+
+    def result_info(self, state: PSOState) -> dict[str, Any]:
+        return {"final_inertia_z": state.inertia_z}
+
+    def init(
+        self,
+        counter: EvaluationCounter,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        x0: np.ndarray | None,
+        max_iterations: int,
+    ) -> PSOState:
+        """N uniform particles (particle 0 at ``x0`` if given) at rest, evaluated in one batch."""
+        n, d = self.population_size, bounds.dim
+        x, f = initial_population(counter, bounds, rng, n, x0)
+        coefficients = np.zeros((0, n, d))
+        inertia_z = 0.5
+        if self.chaotic_coefficients or self.chaotic_inertia:
+            # drawn only when used, so that plain PSO runs do not depend on them
+            seeds = rng.random(2 * n * d + 1)
+            inertia_z = float(seeds[-1])
+            if self.chaotic_coefficients:
+                coefficients = seeds[:-1].reshape(2, n, d)
+        return PSOState(
+            x=x,
+            v=np.zeros((n, d)),
+            best_x=x,
+            best_f=f,
+            t_max=int(max_iterations),
+            lower=np.array(bounds.lower),
+            upper=np.array(bounds.upper),
+            v_max=self.velocity_clamp * bounds.width,
+            coefficients=coefficients,
+            inertia_z=inertia_z,
+        )
+
+    def step(
+        self,
+        state: PSOState,
+        counter: EvaluationCounter,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        iteration: int,
+    ) -> PSOState:
+        n, d = state.x.shape
+        resample = self.bound_handling is BoundHandling.RESAMPLE
+        coefficients, inertia_z = state.coefficients, state.inertia_z
+        # one draw: r1 and r2 (unless chaotic) | resample values (if used)
+        n_uniform = 0 if self.chaotic_coefficients else 2 * n * d
+        u = rng.random(n_uniform + (n * d if resample else 0))
+        if self.chaotic_coefficients:
+            coefficients = next_iterates(int(self.coefficient_map), coefficients)
+            r = coefficients
+        else:
+            r = u[:n_uniform].reshape(2, n, d)
+        if self.chaotic_inertia:
+            inertia_z = apply_map(int(self.inertia_map), inertia_z)
+            w = chaotic_inertia(
+                self.inertia_start, self.inertia_end, iteration, state.t_max, inertia_z
+            )
+        else:
+            w = linear_inertia(self.inertia_start, self.inertia_end, iteration, state.t_max)
+        moved = move_swarm(
+            state.x,
+            state.v,
+            state.best_x,
+            state.best_x[int(np.argmin(state.best_f))],
+            w,
+            self.c1,
+            self.c2,
+            r[0],
+            r[1],
+            state.v_max,
+            state.lower,
+            state.upper,
+            int(self.bound_handling),
+            u[n_uniform:].reshape(n, d) if resample else state.v,
+        )
+        x = moved[:n]
+        best_x, best_f = evaluate_and_select(counter, state.best_x, state.best_f, x)
+        return PSOState(
+            x=x,
+            v=moved[n:],
+            best_x=best_x,
+            best_f=best_f,
+            t_max=state.t_max,
+            lower=state.lower,
+            upper=state.upper,
+            v_max=state.v_max,
+            coefficients=coefficients,
+            inertia_z=inertia_z,
+        )

@@ -1,0 +1,38 @@
+"""Smoke tests of the BBOB validation and the population speed benchmark (tiny settings).
+
+``ioh`` and ``mealpy`` are in the ``dev`` extra, so these run in CI rather than
+being skipped.
+"""
+
+from __future__ import annotations
+
+from benchmarks import bbob, population_speed
+
+
+def test_bbob_runs_and_tabulates() -> None:
+    records = bbob.measure(["original-bso", "pso"], [1, 15], 2, 10, 200)
+    assert len(records) == 3 * 2 * 2  # two optimisers and mealpy, two functions, two instances
+    assert all(r["error"] >= 0.0 and r["nfev"] <= 200 for r in records)
+    mealpy = [r for r in records if r["optimizer"] == bbob.MEALPY_NAME]
+    assert all(r["nfev"] >= 150 for r in mealpy)
+    table = bbob.median_table(records)
+    assert table.count("\n") == 4 and "f15 rot. Rastrigin" in table and "mealpy" in table
+
+
+def test_bbob_error_is_measured_from_the_optimum() -> None:
+    error, nfev, _ = bbob.run_registered("pso", 1, 1, 10, 1300, seed=0)
+    assert nfev == 1300 and 0.0 <= error < 1.0  # sphere: PSO gets close
+    assert "pso" in bbob.population_optimizers()
+    assert "original-bso" in bbob.population_optimizers()
+
+
+def test_population_speed_measures_and_formats() -> None:
+    instants = population_speed.paper_instants((5,))
+    row = population_speed.time_optimizer("pso", instants, 1)
+    assert row["nfev"] == 1230 and 0.0 < row["outside_share"] < 1.0 and row["wall_solve_s"] > 0.0
+    assert 0.0 < row["per_evaluation_s"] < row["solve_s"]
+    mealpy = population_speed.time_mealpy(instants[:1], 200)
+    assert mealpy["per_evaluation_s"] > 0.0
+    row["mealpy_ratio"] = mealpy["per_evaluation_s"] / row["per_evaluation_s"]
+    table = population_speed.format_results({"rows": [row], "mealpy": mealpy})
+    assert "| pso | 1230 |" in table and "mealpy-OriginalBSO" in table

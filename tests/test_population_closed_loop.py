@@ -1,0 +1,58 @@
+"""Every registered population optimiser drives the paper's closed loop, with and without trigger.
+
+Short runs (a few instants) keep this fast; the full 240-instant runs of
+``formation-bench run --optimizer NAME`` are listed in ``docs/optimizers.md``.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from benchmarks.cli import main
+from mpc.loop import simulate
+from mpc.scenario import get_scenario
+from optimizers import PopulationOptimizer, get_optimizer, optimizer_names
+
+SHORT = get_scenario("paper", n_steps=6, settle_time_s=0.0)
+POPULATION = [n for n in optimizer_names() if isinstance(get_optimizer(n), PopulationOptimizer)]
+
+
+@pytest.mark.parametrize("name", POPULATION)
+@pytest.mark.parametrize("trigger", [False, True])
+def test_short_closed_loop(name: str, trigger: bool) -> None:
+    trace = simulate(SHORT, get_optimizer(name), trigger=trigger, seed=0, optimizer_name=name)
+    assert trace.solved[0].all()
+    assert np.isfinite(trace.states).all()
+    lower, upper = SHORT.control_lower, SHORT.control_upper
+    assert (trace.controls >= lower).all() and (trace.controls <= upper).all()
+    assert (trace.nfev[trace.solved] > 0).all()
+
+
+@pytest.mark.parametrize("name", ["original-bso", "pso", "cls-bso"])
+def test_cli_run_writes_metrics(name: str, tmp_path) -> None:
+    out = tmp_path / name
+    args = ["run", "--optimizer", name, "--no-trigger", "--set", "n_steps=5"]
+    assert main([*args, "--set", "settle_time_s=0.0", "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["optimizer"] == name and metrics["solves_per_uav"] == [5, 5, 5]
+
+
+def test_population_optimisers_listed() -> None:
+    expected = {
+        "original-bso",
+        "modified-bso",
+        "modified-bso-no-chaos-replacement",
+        "modified-bso-no-all-centre",
+        "modified-bso-no-modifications",
+        "modified-bso-raw-weights",
+        "pso",
+        "pso-constriction",
+        "chaotic-pso",
+        "cls-bso",
+        "modified-bso-tent",
+        "modified-bso-sine",
+    }
+    assert expected <= set(POPULATION)
