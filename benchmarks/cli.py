@@ -248,6 +248,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     listing = sub.add_parser("list", help="registered optimizers and scenarios")
     listing.set_defaults(func=cmd_list)
+
+    from benchmarks.sweep_commands import add_sweep_commands  # sweep, report
+
+    add_sweep_commands(sub)
     return parser
 
 

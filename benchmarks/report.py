@@ -1,0 +1,476 @@
+"""The report of a results folder: statistics tables (Markdown, CSV) and figures.
+
+One *factor* is compared (by default the optimiser; the trigger when the
+folder holds one optimiser but both trigger settings, as the ``paper`` suite
+does); the other factors (scenario, trigger, budget, optimiser) form *blocks*,
+each reported on its own. Within a block, for every metric:
+
+- per level of the factor: n, median, quartiles, IQR, bootstrap 95 % CI of the median;
+- against the baseline level, paired by seed: Wilcoxon signed-rank p-value, Holm-adjusted
+  over the block's comparisons for that metric, and the Vargha-Delaney A12
+  (P(level > baseline); below 0.5 the level has lower values, better for errors, costs, times);
+- across all levels (3 or more): Friedman's test over the seeds present for every
+  level, the average ranks (1 = lowest value) and Nemenyi post-hoc p-values.
+
+Files written to the report folder: ``report.md``, ``summary.csv``,
+``wilcoxon.csv``, ``friedman.csv``, ``ranks.csv``, ``nemenyi.csv`` and
+``figures/*.png`` (metric distributions, solve-time ECDFs, trigger counts).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from benchmarks import stats
+from benchmarks.store import load_results
+
+FACTORS = ("optimizer", "trigger", "budget", "scenario")
+"""Factors a report can compare, in the order the default choice tries them."""
+
+HEADLINE_METRICS = (
+    "tracking_error_max_m",
+    "tracking_error_rms_m",
+    "distance_error_max_m_max",
+    "closed_loop_cost",
+    "solves_total",
+    "solve_time_median_s",
+    "nfev_total",
+)
+"""Metrics printed on the terminal and plotted; the files hold every metric."""
+
+NOT_METRICS = frozenset(
+    {
+        "seed",
+        "steps",
+        "settle_time_s",
+        "budget_max_evaluations",
+        "budget_max_iterations",
+        "run_time_s",
+        "worker_pid",
+    }
+)
+"""Numeric columns that describe the run rather than measure it."""
+
+SIGNIFICANCE = 0.05
+
+
+class ReportError(ValueError):
+    """A report that cannot be made as asked (one line, exit 2)."""
+
+
+def metric_columns(frame: pd.DataFrame) -> list[str]:
+    """Numeric metric columns: the headline ones first, then the rest in stored order."""
+    numeric = [
+        c
+        for c in frame.columns
+        if c not in NOT_METRICS
+        and c not in FACTORS
+        and pd.api.types.is_numeric_dtype(frame[c])
+        and not pd.api.types.is_bool_dtype(frame[c])
+    ]
+    head = [c for c in HEADLINE_METRICS if c in numeric]
+    return head + [c for c in numeric if c not in head]
+
+
+def prepare(frame: pd.DataFrame) -> pd.DataFrame:
+    """Results with the factors as strings (trigger as ``on``/``off``)."""
+    frame = frame.copy()
+    frame["trigger"] = np.where(frame["trigger"].astype(bool), "on", "off")
+    for factor in FACTORS:
+        frame[factor] = frame[factor].astype(str)
+    return frame
+
+
+def choose_factor(frame: pd.DataFrame, compare: str | None) -> str:
+    if compare is not None:
+        if compare not in FACTORS:
+            raise ReportError(
+                f"--compare: unknown factor {compare!r}; allowed: {', '.join(FACTORS)}"
+            )
+        return compare
+    for factor in FACTORS:
+        if frame[factor].nunique() > 1:
+            return factor
+    return "optimizer"
+
+
+def levels_of(frame: pd.DataFrame, factor: str) -> list[str]:
+    """Levels in a stable order (as the results are sorted, i.e. by suite order of names)."""
+    return list(dict.fromkeys(frame[factor]))
+
+
+def choose_baseline(frame: pd.DataFrame, factor: str, baseline: str | None) -> str:
+    levels = levels_of(frame, factor)
+    if baseline is not None:
+        if baseline not in levels:
+            raise ReportError(
+                f"--baseline: {baseline!r} is not a {factor} in these results; "
+                f"allowed: {', '.join(levels)}"
+            )
+        return baseline
+    preferred = {"optimizer": "modified-bso", "trigger": "off", "scenario": "paper"}.get(factor)
+    return preferred if preferred in levels else levels[0]
+
+
+@dataclass
+class Report:
+    """Everything a report holds."""
+
+    factor: str
+    baseline: str
+    block_factors: list[str]
+    metrics: list[str]
+    summary: pd.DataFrame
+    wilcoxon: pd.DataFrame
+    friedman: pd.DataFrame
+    ranks: pd.DataFrame
+    nemenyi: pd.DataFrame
+    notes: list[str] = field(default_factory=list)
+
+
+def analyse(
+    results: pd.DataFrame, *, baseline: str | None = None, compare: str | None = None
+) -> Report:
+    """Statistics of a results table (as :func:`benchmarks.store.load_results` returns it)."""
+    frame = prepare(results)
+    factor = choose_factor(frame, compare)
+    base = choose_baseline(frame, factor, baseline)
+    block_factors = [f for f in FACTORS if f != factor]
+    metrics = metric_columns(frame)
+    summary_rows, test_rows, friedman_rows, rank_rows, nemenyi_rows = [], [], [], [], []
+    notes = []
+    for block_values, block in frame.groupby(block_factors, sort=False):
+        block_key = dict(zip(block_factors, block_values, strict=True))
+        levels = levels_of(block, factor)
+        compared = [level for level in levels if level != base]
+        if base not in levels and len(levels) > 1:
+            notes.append(f"{describe_block(block_key, frame)}: no {base!r} runs, no paired tests")
+        for metric in metrics:
+            table = block.pivot_table(index="seed", columns=factor, values=metric, aggfunc="first")
+            table = table.reindex(columns=levels)
+            for k, level in enumerate(levels):
+                s = stats.describe(table[level].to_numpy(), seed=k)
+                summary_rows.append({**block_key, factor: level, "metric": metric, **vars(s)})
+            if base in levels and compared:
+                rows = []
+                for level in compared:
+                    pair = table[[level, base]].dropna()
+                    statistic, p = stats.wilcoxon_paired(
+                        pair[level].to_numpy(), pair[base].to_numpy()
+                    )
+                    rows.append(
+                        {
+                            **block_key,
+                            factor: level,
+                            "baseline": base,
+                            "metric": metric,
+                            "n_pairs": len(pair),
+                            "median_difference": float(np.median(pair[level] - pair[base]))
+                            if len(pair)
+                            else math.nan,
+                            "wilcoxon_statistic": statistic,
+                            "p": p,
+                            "a12": stats.a12(table[level].dropna(), table[base].dropna()),
+                        }
+                    )
+                adjusted = stats.holm([r["p"] for r in rows])
+                for row, p_holm in zip(rows, adjusted, strict=True):
+                    row["p_holm"] = p_holm
+                    row["significant"] = bool(p_holm < SIGNIFICANCE)
+                test_rows.extend(rows)
+            if len(levels) >= 3:
+                result = stats.friedman(table)
+                friedman_rows.append(
+                    {
+                        **block_key,
+                        "metric": metric,
+                        "n_seeds": result.n_blocks,
+                        "k": len(levels),
+                        "statistic": result.statistic,
+                        "p": result.pvalue,
+                    }
+                )
+                for level, rank in result.average_ranks.items():
+                    rank_rows.append(
+                        {**block_key, factor: level, "metric": metric, "average_rank": rank}
+                    )
+                if result.nemenyi is not None:
+                    for a in levels:
+                        for b in levels:
+                            if a < b:
+                                nemenyi_rows.append(
+                                    {
+                                        **block_key,
+                                        "metric": metric,
+                                        f"{factor}_a": a,
+                                        f"{factor}_b": b,
+                                        "p": float(result.nemenyi.loc[a, b]),
+                                    }
+                                )
+    return Report(
+        factor=factor,
+        baseline=base,
+        block_factors=block_factors,
+        metrics=metrics,
+        summary=pd.DataFrame(summary_rows),
+        wilcoxon=pd.DataFrame(test_rows),
+        friedman=pd.DataFrame(friedman_rows),
+        ranks=pd.DataFrame(rank_rows),
+        nemenyi=pd.DataFrame(nemenyi_rows),
+        notes=notes,
+    )
+
+
+def describe_block(block_key: dict[str, str], frame: pd.DataFrame) -> str:
+    """The factors that vary in the results, e.g. ``scenario paper, trigger on``."""
+    varying = [f for f in block_key if frame[f].nunique() > 1]
+    parts = [f"{f} {block_key[f]}" for f in varying]
+    if not parts:
+        parts = [f"{f} {block_key[f]}" for f in ("scenario", "trigger") if f in block_key]
+    return ", ".join(parts)
+
+
+# --- Markdown -------------------------------------------------------------------------------
+
+
+def _num(value: float) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    if abs(value) >= 1000 or float(value).is_integer():
+        return f"{value:.0f}"
+    return f"{value:.4g}"
+
+
+def _p(value: float) -> str:
+    if value is None or not math.isfinite(value):
+        return "–"
+    return f"{value:.2e}" if value < 1e-3 else f"{value:.3f}"
+
+
+def to_markdown(
+    report: Report, results: pd.DataFrame, *, metrics: list[str] | None = None, title: str = ""
+) -> str:
+    """The report as Markdown: one section per block, one table per metric."""
+    frame = prepare(results)
+    factor, base = report.factor, report.baseline
+    chosen = [m for m in (metrics or report.metrics) if m in report.metrics]
+    lines = [f"# {title or 'Sweep report'}", ""]
+    lines.append(
+        f"{len(frame)} runs; compared: {factor} (baseline {base!r}); levels: "
+        f"{', '.join(levels_of(frame, factor))}. Paired by seed; Wilcoxon signed-rank "
+        f"(two-sided), Holm-adjusted per block and metric; A12 = P({factor} > baseline) "
+        "(< 0.5: lower values than the baseline). CI: bootstrap 95 % CI of the median. "
+        "Rank: Friedman average rank, 1 = lowest."
+    )
+    lines.append("")
+    for note in report.notes:
+        lines += [f"Note: {note}", ""]
+    for block_values, _ in frame.groupby(report.block_factors, sort=False):
+        block_key = dict(zip(report.block_factors, block_values, strict=True))
+        lines += [f"## {describe_block(block_key, frame) or 'all runs'}", ""]
+        for metric in chosen:
+            lines += _metric_table(report, block_key, metric)
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def _select(table: pd.DataFrame, block_key: dict[str, str], metric: str) -> pd.DataFrame:
+    if table.empty:
+        return table
+    mask = table["metric"] == metric
+    for name, value in block_key.items():
+        mask &= table[name] == value
+    return table[mask]
+
+
+def _metric_table(report: Report, block_key: dict[str, str], metric: str) -> list[str]:
+    factor = report.factor
+    summary = _select(report.summary, block_key, metric).set_index(factor)
+    tests = _select(report.wilcoxon, block_key, metric)
+    tests = tests.set_index(factor) if not tests.empty else tests
+    ranks = _select(report.ranks, block_key, metric)
+    ranks = ranks.set_index(factor) if not ranks.empty else ranks
+    friedman = _select(report.friedman, block_key, metric)
+    header = f"| {factor} | n | median | IQR | 95 % CI | p (Holm) | A12 |"
+    rule = "|---|---:|---:|---:|---|---:|---:|"
+    if not ranks.empty:
+        header += " rank |"
+        rule += "---:|"
+    lines = [f"**{metric}**", "", header, rule]
+    for level, row in summary.iterrows():
+        if level in getattr(tests, "index", []):
+            test = tests.loc[level]
+            mark = " *" if test["significant"] else ""
+            p_cell, a_cell = _p(test["p_holm"]) + mark, f"{test['a12']:.2f}"
+        else:
+            p_cell = "baseline" if level == report.baseline else "–"
+            a_cell = "–"
+        cells = [
+            str(level),
+            str(row["n"]),
+            _num(row["median"]),
+            _num(row["iqr"]),
+            f"{_num(row['ci_low'])} – {_num(row['ci_high'])}",
+            p_cell,
+            a_cell,
+        ]
+        if not ranks.empty:
+            cells.append(f"{ranks.loc[level, 'average_rank']:.2f}" if level in ranks.index else "–")
+        lines.append("| " + " | ".join(cells) + " |")
+    if not friedman.empty:
+        f = friedman.iloc[0]
+        lines.append("")
+        lines.append(
+            f"Friedman: chi2 = {_num(f['statistic'])}, p = {_p(f['p'])}, "
+            f"{int(f['n_seeds'])} seeds x {int(f['k'])} levels."
+        )
+    lines.append("")
+    return lines
+
+
+# --- figures -------------------------------------------------------------------------------
+
+
+def write_figures(report: Report, results: pd.DataFrame, folder: Path) -> list[Path]:
+    """Seaborn figures: headline-metric distributions, solve-time ECDFs, trigger counts."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # seaborn on newer matplotlib
+        return _write_figures(report, results, folder)
+
+
+def _write_figures(report: Report, results: pd.DataFrame, folder: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import seaborn as sns
+
+    folder.mkdir(parents=True, exist_ok=True)
+    frame = prepare(results)
+    factor = report.factor
+    frame["block"] = [
+        describe_block(dict(zip(report.block_factors, values, strict=True)), frame) or "all runs"
+        for values in frame[report.block_factors].itertuples(index=False)
+    ]
+    order = levels_of(frame, factor)
+    n_blocks = frame["block"].nunique()
+    wrap = min(n_blocks, 3)
+    height = max(2.6, 0.3 * len(order) + 1.2)  # levels run down the y axis: names stay legible
+    written = []
+    sns.set_theme(style="whitegrid", context="notebook")
+    palette = "tab10" if len(order) <= 10 else "husl"
+
+    for metric in [m for m in HEADLINE_METRICS if m in report.metrics]:
+        grid = sns.catplot(
+            data=frame,
+            y=factor,
+            x=metric,
+            col="block",
+            col_wrap=wrap if n_blocks > 1 else None,
+            kind="box",
+            order=order,
+            sharex=False,
+            height=height,
+            aspect=max(1.2, 5.5 / height),
+            showfliers=False,
+            color="#b7cde3",
+        )
+        grid.map_dataframe(
+            sns.stripplot, y=factor, x=metric, order=order, color="#1f3b5a", size=3, alpha=0.6
+        )
+        grid.set_titles("{col_name}")
+        grid.figure.suptitle(f"{metric} per {factor} (one point per run)", y=1.02)
+        written.append(_save(grid.figure, folder / f"distribution_{metric}.png", plt))
+
+    if "solve_times_s" in frame.columns:
+        solves = frame[["block", factor, "solve_times_s"]].explode("solve_times_s")
+        solves = solves.dropna().astype({"solve_times_s": float})
+        solves = solves[solves["solve_times_s"] > 0]
+        if not solves.empty:
+            grid = sns.displot(
+                data=solves,
+                x="solve_times_s",
+                hue=factor,
+                hue_order=order,
+                palette=palette,
+                col="block",
+                col_wrap=wrap if n_blocks > 1 else None,
+                kind="ecdf",
+                log_scale=(True, False),
+                height=max(3.6, 0.24 * len(order)),
+                aspect=1.4,
+            )
+            grid.set_titles("{col_name}")
+            grid.set_axis_labels("solve time (s)", "fraction of solves")
+            grid.figure.suptitle("Solve-time ECDF (every solve of every run)", y=1.04)
+            written.append(_save(grid.figure, folder / "solve_time_ecdf.png", plt))
+
+    reasons = [c for c in frame.columns if c.startswith("trigger_") and c != "trigger"]
+    triggered = frame[frame["trigger"] == "on"]
+    if "solves_total" in frame.columns and not triggered.empty:
+        present = [level for level in order if level in set(triggered[factor])]
+        fig_height = max(3.5, 0.32 * len(present) * max(1, triggered["block"].nunique()) + 1.5)
+        fig, axes = plt.subplots(1, 2, figsize=(14.0, fig_height))
+        hue = "block" if triggered["block"].nunique() > 1 else None
+        sns.boxplot(
+            data=triggered, y=factor, x="solves_total", hue=hue, order=present, ax=axes[0],
+            showfliers=False, color="#b7cde3" if hue is None else None,
+        )  # fmt: skip
+        sns.stripplot(
+            data=triggered, y=factor, x="solves_total", hue=hue, order=present, ax=axes[0],
+            dodge=hue is not None, color="#1f3b5a" if hue is None else None, size=3,
+            legend=False,
+        )  # fmt: skip
+        axes[0].set_title("solves per run, all UAVs (trigger on)")
+        if reasons:
+            counts = triggered.groupby(factor, sort=False)[reasons].mean().reindex(present)
+            counts.columns = [c.removeprefix("trigger_") for c in counts.columns]
+            counts.iloc[::-1].plot.barh(ax=axes[1], stacked=True, width=0.7)
+            axes[1].set_title("mean solves per run by trigger condition held")
+            axes[1].set_xlabel("solves (a solve can count under several conditions)")
+            axes[1].legend(title="condition", fontsize="small", loc="upper left",
+                           bbox_to_anchor=(1.0, 1.0))  # fmt: skip
+        else:
+            axes[1].axis("off")
+        fig.tight_layout()
+        written.append(_save(fig, folder / "trigger_counts.png", plt))
+    return written
+
+
+def _save(figure, path: Path, plt) -> Path:
+    figure.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
+# --- the command --------------------------------------------------------------------------
+
+
+def make_report(
+    results_dir: Path | str,
+    out: Path | str | None = None,
+    *,
+    baseline: str | None = None,
+    compare: str | None = None,
+    figures: bool = True,
+) -> tuple[Report, str, Path]:
+    """Analyse ``results_dir``, write every file; returns the report, its headline Markdown
+    and the report folder (``results_dir/report`` unless ``out`` is given)."""
+    results = load_results(results_dir)
+    report = analyse(results, baseline=baseline, compare=compare)
+    folder = Path(out) if out is not None else Path(results_dir) / "report"
+    folder.mkdir(parents=True, exist_ok=True)
+    suite = ", ".join(sorted(results["suite"].unique())) if "suite" in results else ""
+    title = f"Sweep report: {suite}" if suite else "Sweep report"
+    (folder / "report.md").write_text(to_markdown(report, results, title=title))
+    for name in ("summary", "wilcoxon", "friedman", "ranks", "nemenyi"):
+        getattr(report, name).to_csv(folder / f"{name}.csv", index=False)
+    if figures:
+        write_figures(report, results, folder / "figures")
+    headline = to_markdown(report, results, metrics=list(HEADLINE_METRICS), title=title)
+    return report, headline, folder

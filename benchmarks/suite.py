@@ -1,0 +1,746 @@
+"""Sweep specifications: TOML suite files, validated on load, expanded into runs.
+
+A suite names optimisers (with config overrides), scenarios (with overrides),
+trigger settings, seeds and budgets; every combination is one closed-loop run.
+Shipped suites live in ``benchmarks/suites/NAME.toml``; any other TOML file can
+be given by path. The format is documented in ``docs/benchmarks.md``.
+
+Every error names the file, the line and the allowed values, e.g.::
+
+    paper.toml line 9: optimizers[0].name: unknown optimizer 'psoo'; allowed: ...
+
+Each run has an *identity*: the registered optimiser and scenario names, the
+fields their overrides actually change, the trigger, the budget and the seed.
+Its SHA-256 names the run's result file and is the entropy of the run's
+:class:`numpy.random.SeedSequence`, so a run's random numbers depend on what
+the run is and never on where it sits in the queue or which worker runs it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import fnmatch
+import hashlib
+import json
+import math
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mpc.scenario import SCENARIOS, Scenario, get_scenario
+from optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
+
+SUITES_DIR = Path(__file__).parent / "suites"
+"""Where the shipped suites live."""
+
+IDENTITY_VERSION = 1
+"""Bumped if the identity's layout ever changes (it would re-key every run)."""
+
+TOP_LEVEL_FIELDS = ("name", "description", "seeds", "triggers", "budgets", "trace")
+TABLE_FIELDS = ("optimizers", "scenarios")
+OPTIMIZER_FIELDS = ("name", "label", "overrides", "optional", "exclude")
+SCENARIO_FIELDS = ("name", "label", "overrides")
+BUDGET_FIELDS = ("max_evaluations", "max_iterations")
+ALL_OPTIMIZERS = "*"
+
+
+class SuiteError(ValueError):
+    """A suite file that cannot be used; the message names the file, line and allowed values."""
+
+
+# --- canonical JSON of configuration values --------------------------------------------------
+
+
+def jsonable(value: Any) -> Any:
+    """``value`` as plain JSON data (enums by value or lower-case name, tuples as lists)."""
+    if isinstance(value, enum.Enum):
+        return value.value if isinstance(value.value, str) else value.name.lower()
+    if isinstance(value, bool | str) or value is None:
+        return value
+    if isinstance(value, int | np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        return float(value)
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return config_of(value)
+    return re.sub(r" at 0x[0-9a-fA-F]+", "", repr(value))  # no memory addresses: hashes repeat
+
+
+def canonical_json(data: Any) -> str:
+    """Compact JSON with sorted keys: equal data gives equal text."""
+    return json.dumps(jsonable(data), sort_keys=True, separators=(",", ":"), allow_nan=True)
+
+
+def sha256_hex(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def config_of(obj: Any) -> dict[str, Any]:
+    """Every field of a config dataclass as JSON data, with its class name."""
+    fields = {f.name: jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    return {"class": type(obj).__qualname__, **fields}
+
+
+def effective_overrides(default: Any, configured: Any) -> dict[str, Any]:
+    """The fields of ``configured`` that differ from ``default`` (as JSON data).
+
+    So ``population_size = 30`` on a registered optimiser whose population is
+    already 30 is no override at all, and ``3`` equals ``3.0``.
+    """
+    changed = {}
+    for f in dataclasses.fields(configured):
+        new, old = jsonable(getattr(configured, f.name)), jsonable(getattr(default, f.name))
+        if new != old:
+            changed[f.name] = new
+    return changed
+
+
+def from_json_value(value: Any) -> Any:
+    """JSON/TOML data back to a field value: lists become tuples (dataclass fields are tuples)."""
+    if isinstance(value, list):
+        return tuple(from_json_value(v) for v in value)
+    if isinstance(value, dict):
+        return {k: from_json_value(v) for k, v in value.items()}
+    return value
+
+
+# --- runs ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One closed-loop run of a sweep: everything a worker needs, as plain data."""
+
+    suite: str
+    """Name of the suite it came from (recorded, not part of the identity)."""
+    optimizer_label: str
+    """Name of the optimiser configuration in results."""
+    optimizer_name: str
+    """Registered optimiser name."""
+    optimizer_overrides: str
+    """Canonical JSON of the config fields changed from the registered configuration."""
+    scenario_label: str
+    """Name of the scenario configuration in results."""
+    scenario_name: str
+    """Registered scenario name."""
+    scenario_overrides: str
+    """Canonical JSON of the scenario fields changed from the registered scenario."""
+    trigger: bool
+    """Event trigger on, or a solve at every instant."""
+    budget_max_evaluations: int | None
+    """Per-solve evaluation limit; both limits None = the optimiser's own default budget."""
+    budget_max_iterations: int | None
+    """Per-solve iteration limit."""
+    seed: int
+    """The user-facing seed (0, 1, ... from the suite)."""
+    trace: bool
+    """Also store the per-instant trace."""
+    config_hash: str
+    """SHA-256 of the fully resolved optimiser, scenario and budget: a stored result whose
+    hash differs was produced by a different configuration (changed code defaults) and is
+    redone."""
+
+    @property
+    def budget(self) -> Budget | None:
+        if self.budget_max_evaluations is None and self.budget_max_iterations is None:
+            return None
+        return Budget(self.budget_max_evaluations, self.budget_max_iterations)
+
+    @property
+    def budget_label(self) -> str:
+        return budget_label(self.budget_max_evaluations, self.budget_max_iterations)
+
+    def identity(self) -> dict[str, Any]:
+        """What the run *is*: its result file name and random streams derive from this."""
+        return {
+            "v": IDENTITY_VERSION,
+            "optimizer": self.optimizer_name,
+            "optimizer_overrides": json.loads(self.optimizer_overrides),
+            "scenario": self.scenario_name,
+            "scenario_overrides": json.loads(self.scenario_overrides),
+            "trigger": self.trigger,
+            "budget": {
+                "max_evaluations": self.budget_max_evaluations,
+                "max_iterations": self.budget_max_iterations,
+            },
+            "seed": self.seed,
+        }
+
+    @property
+    def identity_json(self) -> str:
+        return canonical_json(self.identity())
+
+    @property
+    def key(self) -> str:
+        """24 hex digits of the identity's SHA-256: the result file's name."""
+        return sha256_hex(self.identity_json)[:24]
+
+    @property
+    def entropy(self) -> int:
+        """128-bit entropy of the run's SeedSequence, from the identity's SHA-256.
+
+        ``simulate(seed=entropy)`` spawns the UAVs' streams from
+        ``SeedSequence(entropy)``; ``formation-bench run --seed ENTROPY`` with the same
+        optimiser, scenario and overrides repeats the run exactly.
+        """
+        digest = hashlib.sha256(b"formation-bench run seed\0" + self.identity_json.encode())
+        return int.from_bytes(digest.digest()[:16], "big")
+
+    def build(self) -> tuple[Scenario, Optimizer]:
+        """The scenario and optimiser objects of this run."""
+        scenario_overrides = from_json_value(json.loads(self.scenario_overrides))
+        optimizer_overrides = from_json_value(json.loads(self.optimizer_overrides))
+        return (
+            get_scenario(self.scenario_name, **scenario_overrides),
+            get_optimizer(self.optimizer_name, **optimizer_overrides),
+        )
+
+    def describe(self) -> str:
+        return (
+            f"{self.optimizer_label} / {self.scenario_label} / "
+            f"trigger {'on' if self.trigger else 'off'} / {self.budget_label} / seed {self.seed}"
+        )
+
+
+def budget_label(max_evaluations: int | None, max_iterations: int | None) -> str:
+    """``default`` or e.g. ``max_evaluations=1200``."""
+    parts = [
+        f"{name}={value}"
+        for name, value in (
+            ("max_evaluations", max_evaluations),
+            ("max_iterations", max_iterations),
+        )
+        if value is not None
+    ]
+    return ",".join(parts) if parts else "default"
+
+
+def resolved_config_hash(scenario: Scenario, optimizer: Optimizer, budget: Budget | None) -> str:
+    """SHA-256 of everything that configures a run (see :attr:`RunSpec.config_hash`)."""
+    effective = budget if budget is not None else optimizer.default_budget
+    return sha256_hex(
+        canonical_json(
+            {
+                "scenario": config_of(scenario),
+                "optimizer": config_of(optimizer),
+                "budget": effective,
+            }
+        )
+    )
+
+
+# --- the suite ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One optimiser or scenario configuration of a suite."""
+
+    label: str
+    name: str
+    overrides: str
+    """Canonical JSON of the effective overrides."""
+
+
+@dataclass(frozen=True)
+class Suite:
+    """A validated suite."""
+
+    name: str
+    path: Path
+    text: str
+    """The suite file's text (recorded in the results manifest)."""
+    description: str
+    seeds: tuple[int, ...]
+    triggers: tuple[bool, ...]
+    budgets: tuple[tuple[int | None, int | None], ...]
+    """``(max_evaluations, max_iterations)`` per budget; ``(None, None)`` = default."""
+    trace: bool
+    optimizers: tuple[Entry, ...]
+    scenarios: tuple[Entry, ...]
+    notes: tuple[str, ...] = ()
+    """What was skipped on load (optional optimisers that are not registered)."""
+
+    @property
+    def sha256(self) -> str:
+        return sha256_hex(self.text)
+
+    def runs(self) -> list[RunSpec]:
+        """Every run, in a fixed order (scenario, optimiser, budget, trigger, seed)."""
+        runs = []
+        for scenario_entry in self.scenarios:
+            for optimizer_entry in self.optimizers:
+                scenario = get_scenario(
+                    scenario_entry.name, **from_json_value(json.loads(scenario_entry.overrides))
+                )
+                optimizer = get_optimizer(
+                    optimizer_entry.name, **from_json_value(json.loads(optimizer_entry.overrides))
+                )
+                for max_evaluations, max_iterations in self.budgets:
+                    budget = (
+                        None
+                        if max_evaluations is None and max_iterations is None
+                        else Budget(max_evaluations, max_iterations)
+                    )
+                    config_hash = resolved_config_hash(scenario, optimizer, budget)
+                    for trigger in self.triggers:
+                        for seed in self.seeds:
+                            runs.append(
+                                RunSpec(
+                                    suite=self.name,
+                                    optimizer_label=optimizer_entry.label,
+                                    optimizer_name=optimizer_entry.name,
+                                    optimizer_overrides=optimizer_entry.overrides,
+                                    scenario_label=scenario_entry.label,
+                                    scenario_name=scenario_entry.name,
+                                    scenario_overrides=scenario_entry.overrides,
+                                    trigger=trigger,
+                                    budget_max_evaluations=max_evaluations,
+                                    budget_max_iterations=max_iterations,
+                                    seed=seed,
+                                    trace=self.trace,
+                                    config_hash=config_hash,
+                                )
+                            )
+        return runs
+
+
+def shipped_suites() -> list[str]:
+    """Names of the suites in ``benchmarks/suites/``."""
+    return sorted(p.stem for p in SUITES_DIR.glob("*.toml"))
+
+
+def resolve_suite_path(name_or_path: str) -> Path:
+    """A shipped suite's file, or the given path if it is a file."""
+    candidate = Path(name_or_path)
+    if candidate.suffix == ".toml" or candidate.is_file():
+        if not candidate.is_file():
+            raise SuiteError(f"suite file {name_or_path} does not exist")
+        return candidate
+    shipped = SUITES_DIR / f"{name_or_path}.toml"
+    if shipped.is_file():
+        return shipped
+    raise SuiteError(
+        f"unknown suite {name_or_path!r}; shipped: {', '.join(shipped_suites())} "
+        "(or give the path of a .toml file)"
+    )
+
+
+def load_suite(name_or_path: str) -> Suite:
+    """Read and validate a suite (shipped name or path); raises :class:`SuiteError`."""
+    path = resolve_suite_path(name_or_path)
+    text = path.read_text()
+    return parse_suite(text, path)
+
+
+def parse_suite(text: str, path: Path) -> Suite:
+    """Validate the suite ``text`` read from ``path``."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise SuiteError(f"{path}: not valid TOML: {err}") from None
+    return _Validator(text, path, data).suite()
+
+
+class _Validator:
+    def __init__(self, text: str, path: Path, data: dict[str, Any]) -> None:
+        self.path = path
+        self.data = data
+        self.lines = _line_index(text)
+        self.text = text
+
+    # errors ------------------------------------------------------------------------------------
+
+    def fail(self, where: tuple[Any, ...], message: str) -> SuiteError:
+        line = self.line_of(where)
+        label = _dotted(where)
+        at = f" line {line}" if line else ""
+        return SuiteError(f"{self.path}{at}: {label + ': ' if label else ''}{message}")
+
+    def line_of(self, where: tuple[Any, ...]) -> int | None:
+        for n in range(len(where), 0, -1):
+            if where[:n] in self.lines:
+                return self.lines[where[:n]]
+        return None
+
+    # top level ---------------------------------------------------------------------------------
+
+    def suite(self) -> Suite:
+        data = self.data
+        allowed = (*TOP_LEVEL_FIELDS, *TABLE_FIELDS)
+        for key in data:
+            if key not in allowed:
+                raise self.fail((key,), f"unknown field; allowed: {', '.join(allowed)}")
+        name = data.get("name", self.path.stem)
+        if not isinstance(name, str) or not name:
+            raise self.fail(("name",), f"must be a non-empty string, got {name!r}")
+        description = data.get("description", "")
+        if not isinstance(description, str):
+            raise self.fail(("description",), f"must be a string, got {description!r}")
+        trace = data.get("trace", False)
+        if not isinstance(trace, bool):
+            raise self.fail(("trace",), f"must be true or false, got {trace!r}")
+        optimizers, notes = self.optimizers()
+        scenarios = self.scenarios()
+        for entry in scenarios:
+            self.check_settle_time(entry)
+        return Suite(
+            name=name,
+            path=self.path,
+            text=self.text,
+            description=description,
+            seeds=self.seeds(),
+            triggers=self.triggers(),
+            budgets=self.budgets(),
+            trace=trace,
+            optimizers=optimizers,
+            scenarios=scenarios,
+            notes=tuple(notes),
+        )
+
+    def seeds(self) -> tuple[int, ...]:
+        seeds = self.data.get("seeds")
+        if seeds is None:
+            raise self.fail((), "missing field 'seeds' (a count, e.g. 30, or a list of seeds)")
+        if _is_int(seeds):
+            if seeds < 1:
+                raise self.fail(("seeds",), f"a count must be >= 1, got {seeds}")
+            return tuple(range(seeds))
+        if isinstance(seeds, list) and seeds and all(_is_int(s) and s >= 0 for s in seeds):
+            if len(set(seeds)) != len(seeds):
+                raise self.fail(("seeds",), "seeds must be distinct")
+            return tuple(seeds)
+        raise self.fail(
+            ("seeds",),
+            f"must be a count >= 1 or a non-empty list of integers >= 0, got {seeds!r}",
+        )
+
+    def triggers(self) -> tuple[bool, ...]:
+        triggers = self.data.get("triggers", [True])
+        if isinstance(triggers, bool):
+            triggers = [triggers]
+        if (
+            not isinstance(triggers, list)
+            or not triggers
+            or not all(isinstance(t, bool) for t in triggers)
+            or len(set(triggers)) != len(triggers)
+        ):
+            raise self.fail(
+                ("triggers",), f"must be true, false or [true, false], got {triggers!r}"
+            )
+        return tuple(triggers)
+
+    def budgets(self) -> tuple[tuple[int | None, int | None], ...]:
+        budgets = self.data.get("budgets", ["default"])
+        if not isinstance(budgets, list) or not budgets:
+            raise self.fail(
+                ("budgets",),
+                'must be a non-empty list of "default" or tables '
+                f"{{max_evaluations = N, max_iterations = M}}, got {budgets!r}",
+            )
+        result = []
+        for k, budget in enumerate(budgets):
+            where = ("budgets", k)
+            if budget == "default":
+                result.append((None, None))
+                continue
+            if not isinstance(budget, dict):
+                raise self.fail(
+                    where,
+                    f'must be "default" or a table with {" and/or ".join(BUDGET_FIELDS)}, '
+                    f"got {budget!r}",
+                )
+            for key in budget:
+                if key not in BUDGET_FIELDS:
+                    raise self.fail(
+                        (*where, key), f"unknown budget field; allowed: {', '.join(BUDGET_FIELDS)}"
+                    )
+            try:
+                checked = Budget(**budget)
+            except ValueError as err:
+                raise self.fail(where, str(err)) from None
+            result.append((checked.max_evaluations, checked.max_iterations))
+        if len(set(result)) != len(result):
+            raise self.fail(("budgets",), "budgets must be distinct")
+        return tuple(result)
+
+    # optimisers and scenarios -----------------------------------------------------------------
+
+    def entries(self, key: str) -> list[tuple[tuple[Any, ...], dict[str, Any]]]:
+        raw = self.data.get(key)
+        if not isinstance(raw, list) or not raw or not all(isinstance(e, dict) for e in raw):
+            raise self.fail((key,), f"must be one or more [[{key}]] tables with at least a name")
+        return [((key, k), entry) for k, entry in enumerate(raw)]
+
+    def optimizers(self) -> tuple[tuple[Entry, ...], list[str]]:
+        registered = sorted(OPTIMIZERS)
+        entries: list[Entry] = []
+        notes: list[str] = []
+        for where, raw in self.entries("optimizers"):
+            self.check_fields(where, raw, OPTIMIZER_FIELDS)
+            name = self.name_field(where, raw)
+            optional = raw.get("optional", False)
+            if not isinstance(optional, bool):
+                raise self.fail((*where, "optional"), f"must be true or false, got {optional!r}")
+            exclude = raw.get("exclude", [])
+            if name == ALL_OPTIMIZERS:
+                if not isinstance(exclude, list) or not all(isinstance(e, str) for e in exclude):
+                    raise self.fail(
+                        (*where, "exclude"), f"must be a list of names or patterns, got {exclude!r}"
+                    )
+                for field_name in ("overrides", "label"):
+                    if field_name in raw:
+                        raise self.fail(
+                            (*where, field_name),
+                            f"not allowed with name = {ALL_OPTIMIZERS!r} (give each optimiser "
+                            "its own [[optimizers]] table instead)",
+                        )
+                for each in registered:
+                    if not any(fnmatch.fnmatchcase(each, pattern) for pattern in exclude):
+                        entries.append(Entry(each, each, "{}"))
+                continue
+            if "exclude" in raw:
+                raise self.fail((*where, "exclude"), f"only allowed with name = {ALL_OPTIMIZERS!r}")
+            if name not in OPTIMIZERS:
+                if optional:
+                    notes.append(f"optimizer {name!r} is not registered here: skipped")
+                    continue
+                raise self.fail(
+                    (*where, "name"),
+                    f"unknown optimizer {name!r}; allowed: {', '.join(registered)}, "
+                    f"or {ALL_OPTIMIZERS!r} for all",
+                )
+            default = get_optimizer(name)
+            overrides = self.overrides_field(where, raw, default, f"optimizer {name!r}")
+            try:
+                configured = get_optimizer(name, **overrides)
+            except (ValueError, TypeError) as err:
+                raise self.override_error(where, overrides, err) from None
+            entries.append(self.entry(where, raw, name, default, configured))
+        self.check_unique(entries, "optimizers")
+        return tuple(entries), notes
+
+    def scenarios(self) -> tuple[Entry, ...]:
+        if "scenarios" not in self.data:
+            return (Entry("paper", "paper", "{}"),)
+        entries = []
+        for where, raw in self.entries("scenarios"):
+            self.check_fields(where, raw, SCENARIO_FIELDS)
+            name = self.name_field(where, raw)
+            if name not in SCENARIOS:
+                raise self.fail(
+                    (*where, "name"),
+                    f"unknown scenario {name!r}; allowed: {', '.join(sorted(SCENARIOS))}",
+                )
+            default = get_scenario(name)
+            overrides = self.overrides_field(where, raw, default, f"scenario {name!r}")
+            try:
+                configured = get_scenario(name, **overrides)
+            except (ValueError, TypeError) as err:
+                raise self.override_error(where, overrides, err) from None
+            entries.append(self.entry(where, raw, name, default, configured))
+        self.check_unique(entries, "scenarios")
+        return tuple(entries)
+
+    def check_settle_time(self, entry: Entry) -> None:
+        scenario = get_scenario(entry.name, **from_json_value(json.loads(entry.overrides)))
+        end = scenario.n_steps * scenario.period_s
+        if scenario.settle_time_s > end + 1e-9:
+            where = self.find_entry("scenarios", entry)
+            raise self.fail(
+                (*where, "overrides", "settle_time_s"),
+                f"settle_time_s={scenario.settle_time_s:g} is after the end of the run "
+                f"({end:g} s = n_steps * period_s); lower settle_time_s",
+            )
+
+    def find_entry(self, key: str, entry: Entry) -> tuple[Any, ...]:
+        for k, raw in enumerate(self.data.get(key) or []):
+            if isinstance(raw, dict) and raw.get("name") == entry.name:
+                return (key, k)
+        return (key,)
+
+    def check_fields(self, where: tuple[Any, ...], raw: dict[str, Any], allowed: tuple) -> None:
+        for key in raw:
+            if key not in allowed:
+                raise self.fail((*where, key), f"unknown field; allowed: {', '.join(allowed)}")
+
+    def name_field(self, where: tuple[Any, ...], raw: dict[str, Any]) -> str:
+        name = raw.get("name")
+        if not isinstance(name, str) or not name:
+            raise self.fail(where, f'needs name = "..." (a registered name), got {name!r}')
+        return name
+
+    def overrides_field(
+        self, where: tuple[Any, ...], raw: dict[str, Any], default: Any, owner: str
+    ) -> dict[str, Any]:
+        overrides = raw.get("overrides", {})
+        if not isinstance(overrides, dict):
+            raise self.fail(
+                (*where, "overrides"), f"must be a table of FIELD = VALUE, got {overrides!r}"
+            )
+        fields = sorted(f.name for f in dataclasses.fields(default))
+        for key in overrides:
+            if key not in fields:
+                raise self.fail(
+                    (*where, "overrides", key),
+                    f"unknown field of {owner}; fields: {', '.join(fields)}",
+                )
+        return {k: from_json_value(v) for k, v in overrides.items()}
+
+    def override_error(
+        self, where: tuple[Any, ...], overrides: dict[str, Any], err: BaseException
+    ) -> SuiteError:
+        message = str(err.args[0]) if err.args else str(err)
+        culprit = next((k for k in overrides if re.search(rf"\b{re.escape(k)}\b", message)), None)
+        path = (*where, "overrides", culprit) if culprit else (*where, "overrides")
+        return self.fail(path, message)
+
+    def entry(
+        self, where: tuple[Any, ...], raw: dict[str, Any], name: str, default: Any, configured: Any
+    ) -> Entry:
+        effective = effective_overrides(default, configured)
+        label = raw.get("label")
+        if label is None:
+            label = name
+            if effective:
+                label += "[" + ",".join(f"{k}={_short(v)}" for k, v in effective.items()) + "]"
+        elif not isinstance(label, str) or not label:
+            raise self.fail((*where, "label"), f"must be a non-empty string, got {label!r}")
+        return Entry(label, name, canonical_json(effective))
+
+    def check_unique(self, entries: list[Entry], key: str) -> None:
+        labels: dict[str, int] = {}
+        configs: dict[tuple[str, str], int] = {}
+        for k, entry in enumerate(entries):
+            if entry.label in labels:
+                raise self.fail(
+                    (key, k, "label"),
+                    f"label {entry.label!r} is used twice; give each [[{key}]] its own label",
+                )
+            labels[entry.label] = k
+            if (entry.name, entry.overrides) in configs:
+                raise self.fail(
+                    (key, k),
+                    f"{entry.label!r} is the same configuration as "
+                    f"{entries[configs[entry.name, entry.overrides]].label!r}",
+                )
+            configs[entry.name, entry.overrides] = k
+
+
+def _short(value: Any) -> str:
+    return json.dumps(value, separators=(",", ":")).strip('"')
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _dotted(where: tuple[Any, ...]) -> str:
+    text = ""
+    for part in where:
+        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
+    return text
+
+
+# --- line numbers -------------------------------------------------------------------------------
+
+_HEADER = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*$")
+_KEY = re.compile(r"^\s*([A-Za-z0-9_\-]+(?:\s*\.\s*[A-Za-z0-9_\-]+)*|\"[^\"]*\")\s*=")
+_INLINE_KEY = re.compile(r"[{,]\s*([A-Za-z0-9_\-]+|\"[^\"]*\")\s*=")
+
+
+def _strip_comment(line: str) -> str:
+    quote = None
+    for k, char in enumerate(line):
+        if quote:
+            if char == quote:
+                quote = None
+        elif char in "\"'":
+            quote = char
+        elif char == "#":
+            return line[:k]
+    return line
+
+
+def _depth_change(text: str) -> int:
+    depth, quote = 0, None
+    for char in text:
+        if quote:
+            if char == quote:
+                quote = None
+        elif char in "\"'":
+            quote = char
+        elif char in "[{":
+            depth += 1
+        elif char in "]}":
+            depth -= 1
+    return depth
+
+
+def _line_index(text: str) -> dict[tuple[Any, ...], int]:
+    """Line (1-based) of every table header and key, keyed by its path.
+
+    A pragmatic scanner for the subset of TOML that suites use; a path it does not
+    find falls back to its parent's line, so an error always names some line.
+    """
+    index: dict[tuple[Any, ...], int] = {}
+    arrays: dict[tuple[str, ...], int] = {}
+    table: tuple[Any, ...] = ()
+    depth = 0
+    for number, raw in enumerate(text.splitlines(), start=1):
+        line = _strip_comment(raw)
+        if depth > 0:  # continuation of a multi-line array or inline table
+            depth += _depth_change(line)
+            continue
+        header = _HEADER.match(line)
+        if header:
+            parts = tuple(p.strip().strip('"') for p in header.group(2).split("."))
+            if header.group(1) == "[[":
+                arrays[parts] = arrays.get(parts, -1) + 1
+            table = _resolve(parts, arrays)
+            index.setdefault(table, number)
+            continue
+        key = _KEY.match(line)
+        if not key:
+            continue
+        parts = tuple(p.strip().strip('"') for p in key.group(1).split("."))
+        path = (*table, *parts)
+        index.setdefault(path, number)
+        value = line[key.end() :]
+        for inner in _INLINE_KEY.finditer(value):
+            index.setdefault((*path, inner.group(1).strip('"')), number)
+        depth = _depth_change(value)
+    return index
+
+
+def _resolve(parts: tuple[str, ...], arrays: dict[tuple[str, ...], int]) -> tuple[Any, ...]:
+    path: list[Any] = []
+    for n in range(1, len(parts) + 1):
+        path.append(parts[n - 1])
+        if parts[:n] in arrays:
+            path.append(arrays[parts[:n]])
+    return tuple(path)
+
+
+def run_count(suite: Suite) -> int:
+    """Number of runs of a suite, without building them."""
+    return math.prod(
+        (
+            len(suite.scenarios),
+            len(suite.optimizers),
+            len(suite.budgets),
+            len(suite.triggers),
+            len(suite.seeds),
+        )
+    )

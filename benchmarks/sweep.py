@@ -1,0 +1,474 @@
+"""Running a suite: every run independent, seeded by its identity, stored as it finishes.
+
+Runs go to local worker processes (joblib's loky backend, ``jobs`` workers,
+native thread pools limited to one thread per worker) or, given a scheduler
+address, to a Dask distributed cluster. Workers only compute: each returns its
+run's metrics row (and trace) to this process, which alone writes the results
+folder. So a cluster needs no shared file system, and the folder's lock keeps
+two sweeps from writing into it at once.
+
+A run's random streams come from ``SeedSequence(entropy)`` with ``entropy``
+derived from the run's identity (:attr:`benchmarks.suite.RunSpec.entropy`), so
+results do not depend on queue order, worker count or which worker ran what.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import sys
+import time
+import traceback
+from collections import Counter
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from benchmarks.outputs import trace_frame
+from benchmarks.runner import warm_up_kernels
+from benchmarks.store import (
+    ResultStore,
+    StoreBusy,
+    git_info,
+    machine_info,
+    now,
+    package_versions,
+)
+from benchmarks.suite import RunSpec, Suite
+from mpc.loop import simulate
+from mpc.metrics import compute_metrics
+from mpc.trigger import TRIGGER_CONDITIONS
+
+DEFAULT_JOBS = 2
+SCHEDULER_TIMEOUT_S = 20
+"""How long to try to reach a Dask scheduler before giving up."""
+MANIFEST_FORMAT = 1
+
+
+class SweepError(RuntimeError):
+    """A sweep that cannot start as asked (reported in one line, exit 2)."""
+
+
+# --- one run, in a worker ---------------------------------------------------------------------
+
+
+@dataclass
+class RunResult:
+    """What a worker sends back: the row to store, or the error of a failed run."""
+
+    key: str
+    row: dict[str, Any] | None
+    trace: pd.DataFrame | None = None
+    error: str | None = None
+
+
+def flatten_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
+    """Metrics as flat columns: ``{"d12": x}`` under ``distance_error_max_m`` becomes
+    ``distance_error_max_m_d12``, a per-UAV list becomes ``..._uav1``, ``..._uav2``, ...
+
+    Whatever keys :func:`mpc.metrics.compute_metrics` returns are kept.
+    """
+    flat: dict[str, Any] = {}
+    for name, value in metrics.items():
+        if isinstance(value, dict):
+            for sub, item in value.items():
+                flat[f"{name}_{sub}"] = item
+        elif isinstance(value, list | tuple | np.ndarray):
+            stem = name.removesuffix("_per_uav")
+            for k, item in enumerate(value, start=1):
+                flat[f"{stem}_uav{k}"] = item.item() if isinstance(item, np.generic) else item
+            if name.endswith("_per_uav") and all(isinstance(v, int | np.integer) for v in value):
+                flat[f"{stem}_total"] = int(np.sum(value))
+        else:
+            flat[name] = value.item() if isinstance(value, np.generic) else value
+    distances = metrics.get("distance_error_max_m")
+    if isinstance(distances, dict) and distances:
+        flat["distance_error_max_m_max"] = float(max(distances.values()))
+    return flat
+
+
+def execute_run(spec: RunSpec) -> RunResult:
+    """Simulate one run and build its results row; never raises (errors are returned)."""
+    from threadpoolctl import threadpool_limits
+
+    start = time.perf_counter()
+    try:
+        with threadpool_limits(limits=1):
+            scenario, optimizer = spec.build()
+            warm_up_kernels()
+            trace = simulate(
+                scenario,
+                optimizer,
+                trigger=spec.trigger,
+                seed=spec.entropy,
+                optimizer_name=spec.optimizer_label,
+                budget=spec.budget,
+            )
+            metrics = compute_metrics(trace)
+            row = _row(spec, metrics)
+            row["solve_times_s"] = [float(t) for t in trace.solve_time_s[trace.solved]]
+            solved_reasons = trace.reasons[trace.solved].sum(axis=0)
+            for k, name in enumerate(TRIGGER_CONDITIONS):
+                row[f"trigger_{name}"] = int(solved_reasons[k])
+            frame = None
+            if spec.trace:
+                frame = trace_frame(trace)
+                frame["scenario"] = spec.scenario_label
+                frame["seed"] = spec.seed
+                frame.insert(3, "budget", spec.budget_label)
+        row["run_time_s"] = time.perf_counter() - start
+        row["finished_at"] = now()
+        row["worker_host"] = socket.gethostname()
+        row["worker_pid"] = os.getpid()
+        return RunResult(spec.key, row, frame)
+    except Exception:
+        return RunResult(spec.key, None, error=traceback.format_exc())
+
+
+def _row(spec: RunSpec, metrics: dict[str, Any]) -> dict[str, Any]:
+    identity = {
+        "run_key": spec.key,
+        "suite": spec.suite,
+        "optimizer": spec.optimizer_label,
+        "optimizer_name": spec.optimizer_name,
+        "optimizer_overrides": spec.optimizer_overrides,
+        "scenario": spec.scenario_label,
+        "scenario_name": spec.scenario_name,
+        "scenario_overrides": spec.scenario_overrides,
+        "trigger": spec.trigger,
+        "budget": spec.budget_label,
+        "budget_max_evaluations": spec.budget_max_evaluations,
+        "budget_max_iterations": spec.budget_max_iterations,
+        "seed": spec.seed,
+        "seed_entropy": str(spec.entropy),
+        "config_hash": spec.config_hash,
+    }
+    flat = flatten_metrics(metrics)
+    return {**identity, **{k: v for k, v in flat.items() if k not in identity}}
+
+
+# --- executors ---------------------------------------------------------------------------------
+
+
+def run_locally(specs: list[RunSpec], jobs: int) -> Iterator[RunResult]:
+    """Results in completion order from ``jobs`` loky worker processes (in-process if 1)."""
+    if jobs == 1:
+        for spec in specs:
+            yield execute_run(spec)
+        return
+    from joblib import Parallel, delayed, parallel_config
+
+    with parallel_config(backend="loky", inner_max_num_threads=1):
+        parallel = Parallel(
+            n_jobs=jobs, return_as="generator_unordered", batch_size=1, pre_dispatch="2*n_jobs"
+        )
+        yield from parallel(delayed(_local_worker_run)(spec) for spec in specs)
+
+
+_PDEATHSIG_SET = False
+
+
+def _local_worker_run(spec: RunSpec) -> RunResult:
+    """:func:`execute_run` in a local worker that dies with the sweep process.
+
+    On Linux the worker asks the kernel for SIGKILL when its parent dies, so a
+    sweep killed with SIGKILL leaves no worker computing or idling behind.
+    """
+    global _PDEATHSIG_SET
+    if not _PDEATHSIG_SET and sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG = 1
+            if os.getppid() == 1:  # the parent died before prctl: do not run orphaned
+                os._exit(1)
+        except (OSError, AttributeError):
+            pass
+        _PDEATHSIG_SET = True
+    return execute_run(spec)
+
+
+def run_on_dask(specs: list[RunSpec], address: str) -> Iterator[RunResult]:
+    """Results in completion order from the Dask cluster whose scheduler is at ``address``."""
+    from dask.distributed import Client, as_completed
+
+    try:
+        client = Client(address, timeout=f"{SCHEDULER_TIMEOUT_S}s", set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as err:
+        reason = " ".join(str(err).split())
+        raise SweepError(
+            f"--scheduler: cannot reach a Dask scheduler at {address!r}: {reason}"
+        ) from None
+    futures = []
+    try:
+        futures = client.map(
+            execute_run, specs, key=[f"formation-bench-run-{s.key}" for s in specs], pure=False
+        )
+        spec_of = {f.key: s for f, s in zip(futures, specs, strict=True)}
+        for future in as_completed(futures):
+            try:
+                result = future.result()
+            except Exception:  # the worker died (KilledWorker) or the task was lost
+                result = RunResult(spec_of[future.key].key, None, error=traceback.format_exc())
+            future.release()
+            yield result
+    finally:
+        if futures:
+            client.cancel(futures)
+        client.close()
+
+
+# --- the sweep ------------------------------------------------------------------------------
+
+
+@dataclass
+class SweepSummary:
+    """How a sweep went."""
+
+    total: int
+    """Runs in the suite."""
+    already: int = 0
+    """Runs found finished and skipped."""
+    redo: dict[str, int] = field(default_factory=dict)
+    """Runs found but redone, by reason (corrupt, stale, no-trace)."""
+    stored: int = 0
+    """Runs finished and stored by this sweep."""
+    failed: list[dict[str, str]] = field(default_factory=list)
+    """Runs that raised: run, key and error."""
+    interrupted: bool = False
+    wall_s: float = 0.0
+
+    @property
+    def pending(self) -> int:
+        return self.total - self.already
+
+    @property
+    def exit_code(self) -> int:
+        if self.interrupted:
+            return 130
+        return 1 if self.failed else 0
+
+
+def plan(suite: Suite, store: ResultStore) -> tuple[list[RunSpec], SweepSummary]:
+    """The runs still to do, and the summary so far."""
+    runs = suite.runs()
+    summary = SweepSummary(total=len(runs))
+    pending = []
+    redo: Counter[str] = Counter()
+    for spec in runs:
+        status = store.status(spec.key, spec.config_hash, spec.trace)
+        if status.state == "done":
+            summary.already += 1
+            continue
+        if status.state != "missing":
+            redo[status.state] += 1
+        pending.append(spec)
+    summary.redo = dict(redo)
+    return pending, summary
+
+
+def _check_suite_matches(
+    manifest: dict[str, Any] | None, suite: Suite, root: Path, allow_change: bool
+) -> None:
+    if manifest is None or allow_change:
+        return
+    stored = manifest.get("suite", {})
+    if stored.get("sha256") != suite.sha256:
+        raise SweepError(
+            f"--out: {root} holds results of suite {stored.get('name')!r} from a different suite "
+            f"file (sha256 {str(stored.get('sha256'))[:12]}, now {suite.sha256[:12]}); "
+            "choose another --out, or add --allow-suite-change to add to it"
+        )
+
+
+def _session(jobs: int, scheduler: str | None) -> dict[str, Any]:
+    return {
+        "started": now(),
+        "finished": None,
+        "state": "running",
+        "executor": f"dask {scheduler}" if scheduler else f"joblib loky, {jobs} workers",
+        "command": " ".join(sys.argv),
+        "versions": package_versions(),
+        "git": git_info(),
+        "machine": machine_info(),
+    }
+
+
+def run_sweep(
+    suite: Suite,
+    out: Path | str,
+    *,
+    jobs: int = DEFAULT_JOBS,
+    scheduler: str | None = None,
+    progress: bool | None = None,
+    allow_suite_change: bool = False,
+    log: Callable[[str], None] | None = None,
+) -> SweepSummary:
+    """Run every unfinished run of ``suite`` into ``out`` and return the summary.
+
+    ``progress`` None shows the bar only on a terminal. Ctrl-C (or SIGTERM) stops
+    cleanly: finished runs are stored, the rest are left for the next call.
+    """
+    say = log or (lambda text: print(text, file=sys.stderr, flush=True))
+    if jobs < 1:
+        raise SweepError(f"--jobs must be an integer >= 1, got {jobs}")
+    start = time.perf_counter()
+    store = ResultStore(out)
+    try:
+        with store.lock():
+            summary = _sweep_locked(
+                suite, store, jobs, scheduler, progress, allow_suite_change, say
+            )
+    except StoreBusy as err:
+        raise SweepError(f"--out: {err}") from None
+    summary.wall_s = time.perf_counter() - start
+    for failure in summary.failed:
+        last = failure["error"].strip().splitlines()[-1]
+        say(f"failed: {failure['run']}: {last}")
+    done = summary.already + summary.stored
+    if summary.interrupted:
+        say(
+            f"interrupted: {done} of {summary.total} runs stored in {store.root}; "
+            "run the same command again to finish"
+        )
+    else:
+        say(
+            f"stored {summary.stored} runs in {summary.wall_s:.1f} s; {done} of {summary.total} "
+            f"runs in {store.root}"
+            + (
+                f"; {len(summary.failed)} failed (see {store.manifest_path})"
+                if summary.failed
+                else ""
+            )
+        )
+    return summary
+
+
+def _sweep_locked(
+    suite: Suite,
+    store: ResultStore,
+    jobs: int,
+    scheduler: str | None,
+    progress: bool | None,
+    allow_suite_change: bool,
+    say: Callable[[str], None],
+) -> SweepSummary:
+    start = time.perf_counter()
+    manifest = store.read_manifest()
+    _check_suite_matches(manifest, suite, store.root, allow_suite_change)
+    store.create()
+    store.remove_temporaries()
+    pending, summary = plan(suite, store)
+    for note in suite.notes:
+        say(f"note: {note}")
+    redone = ", ".join(f"{n} {state}" for state, n in sorted(summary.redo.items()))
+    where = f"Dask scheduler {scheduler}" if scheduler else f"{jobs} local worker(s)"
+    say(
+        f"suite {suite.name}: {summary.total} runs, {summary.already} already stored"
+        + (f", redoing {redone}" if redone else "")
+        + f"; {len(pending)} to run on {where}"
+    )
+    session = _session(jobs, scheduler)
+    session.update(total=summary.total, already=summary.already, redo=summary.redo)
+    manifest = _updated_manifest(manifest, suite, summary.total, session)
+    store.write_manifest(manifest)
+    try:
+        with _sigterm_as_interrupt():
+            _execute(pending, store, summary, jobs, scheduler, progress, suite.name)
+    except KeyboardInterrupt:
+        summary.interrupted = True
+    session.update(
+        finished=now(),
+        state="interrupted" if summary.interrupted else ("failed" if summary.failed else "done"),
+        stored=summary.stored,
+        failed=summary.failed,
+        wall_s=round(time.perf_counter() - start, 3),
+    )
+    manifest["updated"] = session["finished"]
+    store.write_manifest(manifest)
+    return summary
+
+
+def _execute(
+    pending: list[RunSpec],
+    store: ResultStore,
+    summary: SweepSummary,
+    jobs: int,
+    scheduler: str | None,
+    progress: bool | None,
+    name: str,
+) -> None:
+    from tqdm import tqdm
+
+    if not pending:
+        return
+    by_key = {spec.key: spec for spec in pending}
+    results: Iterable[RunResult] = (
+        run_on_dask(pending, scheduler) if scheduler else run_locally(pending, jobs)
+    )
+    with tqdm(
+        total=len(pending),
+        desc=name,
+        unit="run",
+        disable=None if progress is None else not progress,
+        file=sys.stderr,
+    ) as bar:
+        for result in results:
+            spec = by_key[result.key]
+            if result.row is None:
+                summary.failed.append(
+                    {"run": spec.describe(), "key": spec.key, "error": result.error or ""}
+                )
+            else:
+                store.write_run(result.key, result.row, result.trace)
+                summary.stored += 1
+            bar.update(1)
+
+
+class _sigterm_as_interrupt:
+    """Turn SIGTERM into KeyboardInterrupt (main thread only), so batch systems stop cleanly."""
+
+    def __enter__(self) -> None:
+        self.previous = None
+        try:
+            self.previous = signal.signal(signal.SIGTERM, self._raise)
+        except ValueError:  # not the main thread
+            self.previous = None
+
+    def __exit__(self, *exc: object) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGTERM, self.previous)
+
+    @staticmethod
+    def _raise(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+
+def _updated_manifest(
+    manifest: dict[str, Any] | None, suite: Suite, total: int, session: dict[str, Any]
+) -> dict[str, Any]:
+    suite_info = {
+        "name": suite.name,
+        "file": str(suite.path),
+        "sha256": suite.sha256,
+        "text": suite.text,
+        "runs": total,
+        "notes": list(suite.notes),
+    }
+    if manifest is None:
+        manifest = {"format": MANIFEST_FORMAT, "created": session["started"], "sessions": []}
+    previous = manifest.get("suite")
+    if previous and previous.get("sha256") != suite.sha256:
+        manifest.setdefault("previous_suites", []).append(previous)
+    manifest["suite"] = suite_info
+    manifest["updated"] = session["started"]
+    for key in ("versions", "git", "machine"):
+        manifest[key] = session[key]
+    manifest.setdefault("sessions", []).append(session)
+    return manifest

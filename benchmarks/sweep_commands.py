@@ -1,0 +1,152 @@
+"""The ``sweep`` and ``report`` subcommands of ``formation-bench``.
+
+Errors follow the rest of the command line: one line naming the field and the
+allowed values, exit code 2, no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+from benchmarks.report import ReportError, make_report
+from benchmarks.store import StoreError
+from benchmarks.suite import SuiteError, load_suite, shipped_suites
+from benchmarks.sweep import DEFAULT_JOBS, SweepError, plan, run_sweep
+
+USAGE_ERRORS = (SuiteError, SweepError, StoreError, ReportError)
+
+
+def _jobs(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {value}")
+    return value
+
+
+def _guarded(command: str, func):
+    def run(args: argparse.Namespace) -> int:
+        try:
+            return func(args)
+        except USAGE_ERRORS as err:
+            print(f"formation-bench {command}: error: {err}", file=sys.stderr)
+            return 2
+        except BrokenPipeError:  # output piped into e.g. `head`, which stopped reading
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 0
+
+    return run
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    suite = load_suite(args.suite)
+    if args.dry_run:
+        from benchmarks.store import ResultStore
+
+        pending, summary = plan(suite, ResultStore(args.out))
+        print(
+            f"suite {suite.name}: {summary.total} runs, {summary.already} stored, "
+            f"{len(pending)} to run"
+        )
+        for spec in pending:
+            print(f"  {spec.key}  {spec.describe()}")
+        return 0
+    summary = run_sweep(
+        suite,
+        args.out,
+        jobs=args.jobs,
+        scheduler=args.scheduler,
+        progress=args.progress,
+        allow_suite_change=args.allow_suite_change,
+    )
+    return summary.exit_code
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    _, headline, folder = make_report(
+        args.results,
+        args.out,
+        baseline=args.baseline,
+        compare=args.compare,
+        figures=args.figures,
+    )
+    print(headline)
+    print(
+        f"wrote {folder}/report.md, summary.csv, wilcoxon.csv, friedman.csv, ranks.csv, "
+        f"nemenyi.csv{' and figures/' if args.figures else ''} "
+        f"({time.perf_counter() - start:.1f} s)"
+    )
+    return 0
+
+
+def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
+    """Add ``sweep`` and ``report`` to the ``formation-bench`` subcommands."""
+    sweep = sub.add_parser(
+        "sweep",
+        help="run a suite of closed-loop runs (resumable) into a results folder",
+        description="Run every run of a suite that is not already stored in --out.",
+    )
+    sweep.add_argument(
+        "suite",
+        metavar="SUITE",
+        help=f"shipped suite ({', '.join(shipped_suites())}) or path of a suite .toml file",
+    )
+    sweep.add_argument("--out", required=True, help="results folder (created; resumed if present)")
+    sweep.add_argument(
+        "--jobs",
+        type=_jobs,
+        default=DEFAULT_JOBS,
+        help=f"local worker processes, one thread each (default {DEFAULT_JOBS})",
+    )
+    sweep.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="send the runs to this Dask distributed scheduler (e.g. tcp://host:8786) "
+        "instead of local workers; --jobs is then ignored",
+    )
+    sweep.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar with ETA (default: only on a terminal)",
+    )
+    sweep.add_argument(
+        "--allow-suite-change",
+        action="store_true",
+        help="add to a results folder written from a different version of the suite file",
+    )
+    sweep.add_argument("--dry-run", action="store_true", help="list the runs still to do and exit")
+    sweep.set_defaults(func=_guarded("sweep", cmd_sweep))
+
+    report = sub.add_parser(
+        "report",
+        help="statistics tables (Markdown, CSV) and figures of a results folder",
+        description="Median, IQR, bootstrap CI; Wilcoxon vs a baseline with Holm; A12; "
+        "Friedman with average ranks; seaborn figures.",
+    )
+    report.add_argument("results", metavar="DIR", help="results folder written by 'sweep'")
+    report.add_argument(
+        "--baseline",
+        metavar="NAME",
+        help="level compared against (default: modified-bso when comparing optimizers, "
+        "'off' when comparing trigger settings)",
+    )
+    report.add_argument(
+        "--compare",
+        choices=("optimizer", "trigger", "budget", "scenario"),
+        help="factor compared (default: optimizer if the results hold several, else trigger)",
+    )
+    report.add_argument("--out", help="report folder (default: DIR/report)")
+    report.add_argument(
+        "--figures",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="write the seaborn figures (default on)",
+    )
+    report.set_defaults(func=_guarded("report", cmd_report))

@@ -1,0 +1,60 @@
+"""Smoke tests of the scaling benchmark and the pytest-benchmark timing suite."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from benchmarks import scaling
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_scaling_script_reports_speedup_and_overhead(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(scaling, "WARM", scaling.WARM.replace("n_steps = 40", "n_steps = 5"))
+    out = tmp_path / "scaling.json"
+    assert scaling.main(["--runs", "2", "--steps", "10", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "speed-up, 2 workers over 1" in printed and "machinery overhead per run" in printed
+    figures = json.loads(out.read_text())
+    assert figures["speedup"] > 0
+    assert figures["jobs1"]["workers_used"] == 1 and figures["jobs2"]["workers_used"] >= 1
+    assert figures["jobs2"]["workers_started"] == 2
+    assert 0 < figures["jobs1"]["simulate_total_s"] < 2 * figures["jobs1"]["sweep_wall_s"]
+
+
+def test_timing_suite_collects_every_optimizer_and_runs(tmp_path):
+    listing = subprocess.run(
+        [sys.executable, "-m", "pytest", "benchmarks/timing", "--collect-only", "-q"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+    )
+    assert listing.returncode == 0, listing.stdout + listing.stderr
+    from optimizers import OPTIMIZERS
+
+    for name in OPTIMIZERS:
+        assert f"test_solve_time[{name}-default]" in listing.stdout
+    saved = tmp_path / "timing.json"
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "benchmarks/timing/test_solve_timing.py::test_solve_time[modified-bso-default]",
+            "benchmarks/timing/test_solve_timing.py::test_solve_time[pso-equal-1200]",
+            f"--benchmark-json={saved}",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=600,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    data = json.loads(saved.read_text())
+    names = {b["name"] for b in data["benchmarks"]}
+    assert names == {"test_solve_time[modified-bso-default]", "test_solve_time[pso-equal-1200]"}
+    assert data["machine_info"]["cpu_affinity"]
+    assert all(b["stats"]["rounds"] == 27 for b in data["benchmarks"])

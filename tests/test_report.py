@@ -1,0 +1,88 @@
+"""``formation-bench report`` end to end on a small sweep."""
+
+import pandas as pd
+import pytest
+
+from benchmarks.cli import main
+from benchmarks.suite import parse_suite
+from benchmarks.sweep import run_sweep
+
+SUITE = """\
+name = "small"
+seeds = 5
+triggers = [true, false]
+
+[[optimizers]]
+name = "modified-bso"
+overrides = { max_iterations = 3 }
+
+[[optimizers]]
+name = "modified-bso-no-all-centre"
+label = "no-all-centre"
+overrides = { max_iterations = 3 }
+
+[[optimizers]]
+name = "modified-bso-no-modifications"
+label = "no-modifications"
+overrides = { max_iterations = 3 }
+
+[[scenarios]]
+name = "paper"
+overrides = { n_steps = 12, settle_time_s = 1.0 }
+"""
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    out = tmp_path_factory.mktemp("small")
+    suite = parse_suite(SUITE, out / "small.toml")
+    run_sweep(suite, out, jobs=1, progress=False, log=lambda _: None)
+    return out
+
+
+def test_report_prints_and_writes_tables_and_figures(results, capsys):
+    assert main(["report", str(results), "--baseline", "no-modifications"]) == 0
+    printed = capsys.readouterr().out
+    assert "compared: optimizer (baseline 'no-modifications')" in printed
+    assert "## trigger on" in printed and "## trigger off" in printed
+    assert "**tracking_error_max_m**" in printed and "Friedman: chi2 =" in printed
+    folder = results / "report"
+    markdown = (folder / "report.md").read_text()
+    assert "**distance_error_max_m_d31**" in markdown  # the file holds every metric
+    summary = pd.read_csv(folder / "summary.csv")
+    assert set(summary["optimizer"]) == {
+        "modified-bso[max_iterations=3]",
+        "no-all-centre",
+        "no-modifications",
+    }
+    assert set(summary["trigger"]) == {"on", "off"}
+    assert (summary["n"] == 5).all()
+    wilcoxon = pd.read_csv(folder / "wilcoxon.csv")
+    assert set(wilcoxon["baseline"]) == {"no-modifications"}
+    assert {"p", "p_holm", "a12", "n_pairs"} <= set(wilcoxon.columns)
+    assert (wilcoxon["p_holm"].dropna() >= wilcoxon["p"].dropna()).all()
+    ranks = pd.read_csv(folder / "ranks.csv")
+    assert ranks.groupby(["trigger", "metric"])["average_rank"].sum().round(9).eq(6.0).all()
+    assert len(pd.read_csv(folder / "friedman.csv")) > 0
+    assert len(pd.read_csv(folder / "nemenyi.csv")) > 0
+    figures = folder / "figures"
+    for name in (
+        "distribution_tracking_error_max_m.png",
+        "distribution_solves_total.png",
+        "solve_time_ecdf.png",
+        "trigger_counts.png",
+    ):
+        assert (figures / name).stat().st_size > 10_000
+
+
+def test_report_compares_triggers_and_refuses_an_unknown_baseline(results, tmp_path, capsys):
+    out = tmp_path / "rep"
+    code = main(["report", str(results), "--compare", "trigger", "--out", str(out), "--no-figures"])
+    assert code == 0
+    assert "compared: trigger (baseline 'off')" in capsys.readouterr().out
+    assert not (out / "figures").exists()
+    assert main(["report", str(results), "--baseline", "pso"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert err.startswith("formation-bench report: error: --baseline: 'pso'")
+    assert "no-modifications" in err

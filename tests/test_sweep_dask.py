@@ -1,0 +1,85 @@
+"""The Dask path: a small suite on a LocalCluster gives the local path's results."""
+
+import pandas as pd
+import pytest
+
+from benchmarks.cli import main
+from benchmarks.store import is_timing_column, load_results
+from benchmarks.suite import parse_suite
+from benchmarks.sweep import SweepError, run_sweep
+
+distributed = pytest.importorskip("dask.distributed")
+
+SUITE = """\
+name = "dask"
+seeds = 3
+triggers = [true, false]
+
+[[optimizers]]
+name = "modified-bso"
+overrides = { max_iterations = 3 }
+
+[[optimizers]]
+name = "modified-bso-no-chaos-replacement"
+overrides = { max_iterations = 3 }
+
+[[scenarios]]
+name = "paper"
+overrides = { n_steps = 10, settle_time_s = 1.0 }
+"""
+
+
+def deterministic(frame: pd.DataFrame) -> pd.DataFrame:
+    keep = [c for c in frame.columns if not is_timing_column(c)]
+    return frame[keep].sort_values("run_key").reset_index(drop=True)
+
+
+def test_dask_local_cluster_matches_the_local_path(tmp_path):
+    suite_file = tmp_path / "dask.toml"
+    suite_file.write_text(SUITE)
+    suite = parse_suite(SUITE, suite_file)
+    local = tmp_path / "local"
+    run_sweep(suite, local, jobs=1, progress=False, log=lambda _: None)
+
+    with (
+        distributed.LocalCluster(
+            n_workers=2,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            host="127.0.0.1",
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
+        out = tmp_path / "dask"
+        code = main(["sweep", str(suite_file), "--out", str(out), "--scheduler",
+                     cluster.scheduler_address, "--no-progress"])  # fmt: skip
+        assert code == 0
+        hosts = load_results(out)["worker_pid"].unique()
+        worker_pids = set(client.run(lambda: __import__("os").getpid()).values())
+        assert set(hosts) <= worker_pids
+        # resume through the cluster: nothing left to do
+        summary = run_sweep(
+            suite, out, scheduler=cluster.scheduler_address, progress=False, log=lambda _: None
+        )
+        assert summary.already == 12 and summary.stored == 0
+
+    got = load_results(out)
+    assert len(got) == 12
+    pd.testing.assert_frame_equal(
+        deterministic(got), deterministic(load_results(local)), check_exact=True
+    )
+
+
+def test_an_unreachable_scheduler_is_a_one_line_error(tmp_path, monkeypatch):
+    monkeypatch.setattr("benchmarks.sweep.SCHEDULER_TIMEOUT_S", 2)
+    suite = parse_suite(SUITE, tmp_path / "dask.toml")
+    with pytest.raises(SweepError, match="cannot reach a Dask scheduler") as info:
+        run_sweep(
+            suite,
+            tmp_path / "o",
+            scheduler="tcp://127.0.0.1:1",
+            progress=False,
+            log=lambda _: None,
+        )
+    assert "\n" not in str(info.value)

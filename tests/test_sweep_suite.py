@@ -1,0 +1,237 @@
+"""Suite files: the shipped suites, validation errors with line numbers, run identities."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmarks.cli import main
+from benchmarks.suite import (
+    SuiteError,
+    canonical_json,
+    config_of,
+    load_suite,
+    parse_suite,
+    sha256_hex,
+    shipped_suites,
+)
+from benchmarks.sweep import execute_run
+from mpc.loop import simulate
+from mpc.metrics import compute_metrics
+from optimizers import OPTIMIZERS
+
+GOOD = """\
+name = "t"
+seeds = [3, 1]
+triggers = [true, false]
+budgets = ["default", { max_evaluations = 200 }]
+
+[[optimizers]]
+name = "modified-bso"
+overrides = { max_iterations = 2 }
+
+[[optimizers]]
+name = "modified-bso-no-modifications"
+label = "plain"
+
+[[scenarios]]
+name = "paper"
+overrides = { n_steps = 8, settle_time_s = 0.4 }
+"""
+
+
+def parse(text: str):
+    return parse_suite(text, Path("s.toml"))
+
+
+def error_of(text: str) -> str:
+    with pytest.raises(SuiteError) as info:
+        parse(text)
+    return str(info.value)
+
+
+def test_shipped_suites_load_with_the_promised_contents():
+    assert {"paper", "ablation", "comparison"} <= set(shipped_suites())
+    paper = load_suite("paper")
+    assert [e.name for e in paper.optimizers] == ["modified-bso"]
+    assert paper.scenarios[0].name == "paper" and paper.scenarios[0].overrides == "{}"
+    assert set(paper.triggers) == {True, False} and paper.seeds == tuple(range(30))
+    assert len(paper.runs()) == 60
+    ablation = load_suite("ablation")
+    names = [e.name for e in ablation.optimizers]
+    assert names[0] == "modified-bso" and len(names) >= 4
+    assert all(n.startswith("modified-bso") for n in names) and len(ablation.seeds) == 30
+    comparison = load_suite("comparison")
+    assert sorted(e.name for e in comparison.optimizers) == sorted(OPTIMIZERS)
+    assert comparison.budgets == ((1200, None),) and len(comparison.seeds) == 30
+
+
+def test_expansion_order_labels_and_budgets():
+    suite = parse(GOOD)
+    runs = suite.runs()
+    assert len(runs) == 2 * 2 * 2 * 2
+    assert [r.optimizer_label for r in runs[:8]] == ["modified-bso[max_iterations=2]"] * 8
+    assert {r.optimizer_label for r in runs} == {"modified-bso[max_iterations=2]", "plain"}
+    assert {r.budget_label for r in runs} == {"default", "max_evaluations=200"}
+    assert [r.seed for r in runs[:2]] == [3, 1]
+    assert len({r.key for r in runs}) == len(runs)
+    assert len({r.entropy for r in runs}) == len(runs)
+
+
+def test_identity_ignores_labels_order_and_no_op_overrides():
+    suite = parse(GOOD)
+    renamed = parse(
+        GOOD.replace('label = "plain"', 'label = "other"').replace(
+            "max_iterations = 2 }", "max_iterations = 2, population_size = 30 }"
+        )
+    )
+    assert {r.key for r in suite.runs()} == {r.key for r in renamed.runs()}
+    assert {r.entropy for r in suite.runs()} == {r.entropy for r in renamed.runs()}
+    # a real change of configuration is a different run
+    changed = parse(GOOD.replace("max_iterations = 2 }", "max_iterations = 3 }"))
+    assert {r.key for r in suite.runs()} != {r.key for r in changed.runs()}
+
+
+def test_a_sweep_run_is_simulate_with_the_identity_entropy():
+    run = parse(GOOD).runs()[0]
+    result = execute_run(run)
+    assert result.error is None
+    scenario, optimizer = run.build()
+    trace = simulate(scenario, optimizer, trigger=run.trigger, seed=run.entropy, budget=run.budget)
+    metrics = compute_metrics(trace)
+    assert result.row["seed"] == run.seed and result.row["seed_entropy"] == str(run.entropy)
+    assert result.row["tracking_error_max_m"] == metrics["tracking_error_max_m"]
+    assert result.row["nfev_total"] == metrics["nfev_total"]
+    assert result.row["solves_total"] == sum(metrics["solves_per_uav"])
+    assert result.row["distance_error_max_m_d31"] == metrics["distance_error_max_m"]["d31"]
+    assert len(result.row["solve_times_s"]) == result.row["solves_total"]
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "needles"),
+    [
+        (GOOD.replace('name = "modified-bso"\n', 'name = "psoo"\n'), 7, ["unknown optimizer 'psoo'",
+         "modified-bso-no-modifications"]),
+        (GOOD.replace("max_iterations = 2", "max_iteration = 2"), 8, ["max_iteration",
+         "population_size"]),
+        (GOOD.replace("max_iterations = 2", "population_size = 1"), 8, ["population_size",
+         ">= 2"]),
+        (GOOD.replace('name = "t"', 'nmae = "t"'), 1, ["unknown field", "seeds"]),
+        (GOOD.replace("seeds = [3, 1]", "seeds = -2"), 2, ["seeds", ">= 1"]),
+        (GOOD.replace("triggers = [true, false]", 'triggers = ["on"]'), 3, ["triggers"]),
+        (GOOD.replace("max_evaluations = 200", "max_evals = 200"), 4, ["max_evals",
+         "max_evaluations, max_iterations"]),
+        (GOOD.replace("max_evaluations = 200", "max_evaluations = 0"), 4, ["max_evaluations"]),
+        (GOOD.replace('label = "plain"', "colour = 1"), 12, ["unknown field", "label"]),
+        (GOOD.replace('name = "paper"', 'name = "moon"'), 15, ["unknown scenario 'moon'",
+         "paper-straight"]),
+        (GOOD.replace("n_steps = 8", "n_stepz = 8"), 16, ["n_stepz", "horizon_steps"]),
+        (GOOD.replace("n_steps = 8", "n_steps = 0"), 16, ["n_steps", "[1,"]),
+        (GOOD.replace("settle_time_s = 0.4", "settle_time_s = 9.0"), 16, ["settle_time_s",
+         "after the end"]),
+        (GOOD.replace('label = "plain"', 'label = "modified-bso[max_iterations=2]"'), 12,
+         ["used twice"]),
+        (GOOD.replace("seeds = [3, 1]", "seeds = [3, 1"), None, ["not valid TOML"]),
+    ],
+)  # fmt: skip
+def test_validation_names_the_line_and_the_allowed_values(text, line, needles):
+    message = error_of(text)
+    assert message.startswith("s.toml")
+    if line is not None:
+        assert f"s.toml line {line}:" in message
+    for needle in needles:
+        assert needle in message
+    assert "\n" not in message
+
+
+def test_optional_optimizers_are_skipped_and_star_takes_every_registered_one():
+    text = GOOD.replace(
+        'name = "modified-bso-no-modifications"', 'name = "ipopt-x"\noptional = true'
+    )
+    suite = parse(text.replace('label = "plain"\n', ""))
+    assert [e.name for e in suite.optimizers] == ["modified-bso"]
+    assert "ipopt-x" in suite.notes[0]
+    star = parse('seeds = 1\n[[optimizers]]\nname = "*"\nexclude = ["modified-bso-*"]\n')
+    expected = sorted(n for n in OPTIMIZERS if not n.startswith("modified-bso-"))
+    assert sorted(e.name for e in star.optimizers) == expected
+    message = error_of('seeds = 1\n[[optimizers]]\nname = "*"\noverrides = { a = 1 }\n')
+    assert "line 4" in message and "not allowed" in message
+
+
+def test_same_configuration_twice_is_refused():
+    text = GOOD.replace(
+        'name = "modified-bso-no-modifications"\nlabel = "plain"',
+        'name = "modified-bso"\nlabel = "again"\noverrides = { max_iterations = 2 }',
+    )
+    assert "same configuration" in error_of(text)
+
+
+def test_cli_reports_a_bad_suite_in_one_line_exit_2(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(GOOD.replace('name = "modified-bso"\n', 'name = "nope"\n'))
+    result = subprocess.run(
+        [sys.executable, "-m", "benchmarks.cli", "sweep", str(bad), "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.stderr
+    assert lines[0].startswith("formation-bench sweep: error:")
+    assert "line 7" in lines[0] and "unknown optimizer 'nope'" in lines[0]
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["sweep", "no-such-suite", "--out", "x"], "unknown suite 'no-such-suite'; shipped:"),
+        (["sweep", "paper", "--out", "x", "--jobs", "0"], "--jobs"),
+        (["report", "{tmp}/nothing"], "holds no results"),
+    ],
+)
+def test_bad_sweep_and_report_arguments_exit_2(args, needle, tmp_path, capsys):
+    args = [a.replace("{tmp}", str(tmp_path)) for a in args]
+    with pytest.raises(SystemExit) if "--jobs" in args else _nullcontext():
+        code = main(args)
+        assert code == 2
+    err = capsys.readouterr().err
+    assert needle in err and len(err.strip().splitlines()) == 1
+
+
+class _nullcontext:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def test_entropy_is_128_bits_and_key_is_stable():
+    run = parse(GOOD).runs()[0]
+    assert 0 <= run.entropy < 2**128
+    assert run.key == parse(GOOD).runs()[0].key
+    identity = run.identity()
+    assert identity["seed"] == 3 and identity["optimizer_overrides"] == {"max_iterations": 2}
+    assert json.loads(run.identity_json) == identity
+    # the derived entropy is what the per-UAV streams are spawned from
+    streams = np.random.SeedSequence(run.entropy).spawn(3)
+    assert streams[0].entropy == run.entropy
+
+
+def test_every_registered_configuration_hashes_the_same_in_any_process():
+    code = (
+        "from optimizers import OPTIMIZERS; from benchmarks.suite import config_of, canonical_json;"
+        "import hashlib; print({n: hashlib.sha256(canonical_json(config_of(r.optimizer)).encode())"
+        ".hexdigest() for n, r in sorted(OPTIMIZERS.items())})"
+    )
+    here = {
+        n: sha256_hex(canonical_json(config_of(r.optimizer))) for n, r in sorted(OPTIMIZERS.items())
+    }
+    there = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    ).stdout
+    assert there.strip() == str(here)
