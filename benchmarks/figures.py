@@ -7,10 +7,6 @@ the notebook can draw the same figures from stored results.
 
 from __future__ import annotations
 
-import matplotlib
-
-matplotlib.use("Agg")
-
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
@@ -126,3 +122,53 @@ def save(fig: plt.Figure, path) -> None:
     """Save as PNG at a legible resolution and free the figure."""
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _settled(frame: pd.DataFrame, settle_time_s: float) -> pd.DataFrame:
+    return frame[frame["time_s"] >= settle_time_s - 1e-9]
+
+
+def trajectory_sentence(frame: pd.DataFrame, settle_time_s: float = 10.0) -> str:
+    """How far the formation centre strays from the reference, before and after settling."""
+    x, y = _wide(frame, "x_m"), _wide(frame, "y_m")
+    reference = frame[frame["uav"] == frame["uav"].min()].set_index("time_s")
+    error = np.hypot(x.mean(axis=1) - reference["ref_x_m"], y.mean(axis=1) - reference["ref_y_m"])
+    settled = error[error.index >= settle_time_s - 1e-9]
+    return (
+        f"the formation centre starts {error.iloc[0]:.1f} m from the reference, strays up to "
+        f"{error.max():.1f} m while the formation forms, and stays within {settled.max():.2f} m "
+        f"of it after {settle_time_s:g} s."
+    )
+
+
+def states_sentence(
+    frame: pd.DataFrame, desired_distances: dict[str, float], settle_time_s: float
+) -> str:
+    """The largest distance error of each pair after settling, and the speed spread at the end."""
+    x, y = _wide(frame, "x_m"), _wide(frame, "y_m")
+    keep = x.index >= settle_time_s - 1e-9
+    errors = []
+    for name, i, j in pair_names(x.shape[1]):
+        distance = np.hypot(x.iloc[:, i] - x.iloc[:, j], y.iloc[:, i] - y.iloc[:, j])
+        errors.append(f"{name} {np.abs(distance[keep] - desired_distances[name]).max():.2f} m")
+    speed = _wide(frame, "speed_m_s").iloc[-1]
+    return (
+        f"after {settle_time_s:g} s the largest distance errors are "
+        + ", ".join(errors)
+        + f"; at the end the speeds differ by {speed.max() - speed.min():.2f} m/s."
+    )
+
+
+def trigger_sentence(frame: pd.DataFrame) -> str:
+    """Solves per UAV and how they thin out after the start-up."""
+    solved = frame[frame["solved"]]
+    steps = int(frame["step"].max())
+    counts = solved.groupby("uav").size().reindex(sorted(frame["uav"].unique()), fill_value=0)
+    half = frame["time_s"].max() / 2
+    early = solved[solved["time_s"] < half].shape[0]
+    late = solved[solved["time_s"] >= half].shape[0]
+    return (
+        "the UAVs solve " + ", ".join(f"{n}" for n in counts) + f" times of {steps} "
+        f"({100 * (1 - counts.mean() / steps):.0f} % saved on average); "
+        f"{early} solves fall in the first half of the run and {late} in the second."
+    )

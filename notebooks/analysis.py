@@ -1,0 +1,195 @@
+# ---
+# jupyter:
+#   jupytext:
+#     formats: ipynb,py:percent
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+#   kernelspec:
+#     display_name: Python 3 (ipykernel)
+#     language: python
+#     name: python3
+# ---
+
+# %% [markdown]
+# # formation-bench: analysis of stored results
+#
+# This notebook reads the results of `formation-bench sweep` runs and draws the
+# paper's figures, the optimiser comparison, the ablation of the modified BSO and
+# the trigger trade-off. It computes no metric itself: the metrics come from the
+# results store, and the statistics from `benchmarks.report`. The sentence under
+# each figure is computed from the data.
+#
+# Produce the results (about 15 minutes on 2 cores for all four suites):
+#
+# ```bash
+# for suite in paper ablation comparison trigger; do
+#     formation-bench sweep $suite --out results/$suite
+# done
+# ```
+#
+# A section whose suite is missing says so and is skipped.
+
+# %% tags=["parameters"]
+import os
+
+# The folder that holds the results stores (one subfolder per suite).
+RESULTS_DIR = os.environ.get("FORMATION_BENCH_RESULTS", "../results")
+# Seeds per recorded instant for the convergence curves (section 3).
+CONVERGENCE_SEEDS = int(os.environ.get("FORMATION_BENCH_CONVERGENCE_SEEDS", "5"))
+
+# %%
+# %matplotlib inline
+import matplotlib.pyplot as plt
+import pandas as pd
+from IPython.display import Markdown, display
+
+from benchmarks import analysis, figures
+from benchmarks.report import analyse
+from benchmarks.result_figures import (
+    distribution_figure,
+    solve_time_ecdf_figure,
+    solves_figure,
+)
+from mpc.metrics import pair_names
+from mpc.scenario import get_scenario
+
+pd.set_option("display.precision", 3)
+results = analysis.load_all(RESULTS_DIR)
+display(
+    Markdown(
+        f"Loaded {len(results)} runs from {RESULTS_DIR}: "
+        + ", ".join(f"{s} ({n})" for s, n in results.groupby("suite").size().items())
+    )
+)
+
+
+def say(text: str) -> None:
+    display(Markdown(text))
+
+
+def show(fig: plt.Figure) -> None:
+    """Embed the figure (works with any backend, also headless Agg) and free it."""
+    display(fig)
+    plt.close(fig)
+
+
+# %% [markdown]
+# ## 1. The paper reproduced
+#
+# The `paper` suite: the paper scenario with the modified BSO, without and with
+# the trigger. The figures show the run whose tracking error is the median over
+# the seeds.
+
+# %%
+paper = analysis.suite_runs(results, "paper")
+if paper.empty:
+    say("No `paper` suite in this folder: section 1 skipped.")
+else:
+    table = analysis.paper_figures_table(paper)
+    display(table)
+    say(analysis.paper_sentence(table))
+
+# %%
+if not paper.empty:
+    scenario = get_scenario("paper")
+    desired = scenario.desired_distances()
+    desired_by_name = {name: float(desired[i, j]) for name, i, j in pair_names(scenario.n_uav)}
+    for trigger, numbers in ((False, (3, 4)), (True, (5, 6))):
+        if not (paper["trigger"] == trigger).any():
+            continue
+        row, trace = analysis.representative_run(RESULTS_DIR, paper, trigger)
+        settle = float(row["settle_time_s"])
+        show(figures.trajectory_figure(trace))
+        say(
+            f"Fig. {numbers[0]} ({'with' if trigger else 'without'} trigger, seed {row['seed']}): "
+            + figures.trajectory_sentence(trace, settle)
+        )
+        show(figures.states_figure(trace, desired_by_name, settle))
+        say(f"Fig. {numbers[1]}: " + figures.states_sentence(trace, desired_by_name, settle))
+        if trigger:
+            show(figures.trigger_figure(trace))
+            say("Fig. 7: " + figures.trigger_sentence(trace))
+
+# %% [markdown]
+# ## 2. Optimiser comparison
+#
+# The `comparison` suite: every registered optimiser at one evaluation budget per
+# solve, on the paper scenario with the trigger.
+
+# %%
+comparison = analysis.suite_runs(results, "comparison")
+if comparison.empty:
+    say("No `comparison` suite in this folder: section 2 skipped.")
+else:
+    for metric in ("closed_loop_cost", "tracking_error_max_m", "distance_error_max_m_max"):
+        show(distribution_figure(comparison, metric, "optimizer"))
+        say(analysis.distribution_sentence(comparison, metric))
+
+# %%
+if not comparison.empty:
+    show(solve_time_ecdf_figure(comparison, "optimizer"))
+    say(analysis.solve_time_sentence(comparison))
+
+# %%
+with_and_without = pd.concat([comparison, paper], ignore_index=True)
+if not with_and_without.empty:
+    show(solves_figure(with_and_without))
+    say(analysis.solves_sentence(with_and_without))
+
+# %%
+if not comparison.empty:
+    report = analyse(comparison, baseline="modified-bso")
+    say(
+        f"Statistics against the baseline `{report.baseline}` (paired by seed, Wilcoxon "
+        "signed-rank, Holm-adjusted; A12 < 0.5: lower than the baseline):"
+    )
+    headline = ["tracking_error_max_m", "distance_error_max_m_max", "closed_loop_cost"]
+    display(report.wilcoxon[report.wilcoxon["metric"].isin(headline)])
+    display(report.friedman)
+
+# %% [markdown]
+# ## 3. Ablation of the modified BSO
+#
+# The `ablation` suite: the modified BSO with each modification switched off,
+# both off, and the raw (unnormalised) weights of eq. (9), at one evaluation
+# budget, paired by seed against the full modified BSO.
+
+# %%
+ablation = analysis.suite_runs(results, "ablation")
+if ablation.empty:
+    say("No `ablation` suite in this folder: section 3 skipped.")
+else:
+    ablation_report = analyse(ablation, baseline="modified-bso")
+    for metric in ("tracking_error_max_m", "distance_error_max_m_max", "closed_loop_cost"):
+        effects = analysis.ablation_effects(ablation_report.wilcoxon, metric)
+        display(pd.DataFrame([vars(e) for e in effects]))
+        say(analysis.ablation_sentence(effects))
+
+# %%
+if not ablation.empty:
+    show(distribution_figure(ablation, "distance_error_max_m_max", "optimizer"))
+    say(analysis.distribution_sentence(ablation, "distance_error_max_m_max"))
+
+# %%
+if not ablation.empty:
+    variants = sorted(ablation["optimizer"].unique())
+    curves = analysis.convergence_curves(variants, seeds=CONVERGENCE_SEEDS)
+    show(analysis.convergence_figure(curves))
+    say(analysis.convergence_sentence(curves))
+
+# %% [markdown]
+# ## 4. Trigger trade-off
+#
+# The `trigger` suite sweeps the thresholds eps_p = eps_O; the runs without the
+# trigger come from the `paper` suite.
+
+# %%
+trigger_runs = analysis.suite_runs(results, "trigger")
+if trigger_runs.empty:
+    say("No `trigger` suite in this folder: section 4 skipped.")
+else:
+    baseline = paper[~paper["trigger"].astype(bool)] if not paper.empty else paper
+    tradeoff = analysis.trigger_tradeoff(pd.concat([trigger_runs, baseline], ignore_index=True))
+    show(analysis.trigger_tradeoff_figure(tradeoff))
+    say(analysis.trigger_sentence(tradeoff))

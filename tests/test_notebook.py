@@ -1,0 +1,119 @@
+"""The analysis notebook runs top to bottom on results the test makes, headless.
+
+Miniature versions of the four suites (tests/data/notebook/*.toml: 30 instants,
+3 seeds, small budgets) are swept into a temporary folder, then the notebook
+is executed with nbclient on the venv's ``python3`` kernel with MPLBACKEND=Agg.
+"""
+
+import base64
+import os
+from pathlib import Path
+
+import nbformat
+import pandas as pd
+import pytest
+from nbclient import NotebookClient
+
+from benchmarks import analysis
+from benchmarks.suite import load_suite
+from benchmarks.sweep import run_sweep
+
+ROOT = Path(__file__).parents[1]
+SUITES = ("paper", "ablation", "comparison", "trigger")
+
+
+@pytest.fixture(scope="module")
+def results_dir(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("notebook-results")
+    for name in SUITES:
+        suite = load_suite(str(ROOT / "tests" / "data" / "notebook" / f"{name}.toml"))
+        run_sweep(suite, folder / name, jobs=1, progress=False, log=lambda text: None)
+    return folder
+
+
+def test_notebook_twin_is_in_sync():
+    import jupytext
+
+    paired = jupytext.read(ROOT / "notebooks" / "analysis.py")
+    notebook = nbformat.read(ROOT / "notebooks" / "analysis.ipynb", as_version=4)
+    sources = [c.source for c in notebook.cells]
+    assert sources == [c.source for c in paired.cells], (
+        "notebooks/analysis.ipynb and analysis.py differ: "
+        "run `jupytext --sync notebooks/analysis.py`"
+    )
+
+
+def test_notebook_executes_on_stored_results(results_dir, tmp_path, monkeypatch):
+    monkeypatch.setenv("FORMATION_BENCH_RESULTS", str(results_dir))
+    monkeypatch.setenv("FORMATION_BENCH_CONVERGENCE_SEEDS", "2")
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    notebook = nbformat.read(ROOT / "notebooks" / "analysis.ipynb", as_version=4)
+    client = NotebookClient(
+        notebook,
+        timeout=600,
+        kernel_name="python3",
+        resources={"metadata": {"path": str(ROOT / "notebooks")}},
+    )
+    client.execute()
+    outputs = [out for cell in notebook.cells for out in cell.get("outputs", [])]
+    assert not [out for out in outputs if out.output_type == "error"]
+    images = [out for out in outputs if "image/png" in out.get("data", {})]
+    # Figs. 3-7 (5), three comparison distributions, ECDF, solves, ablation distribution,
+    # convergence, trigger trade-off
+    assert len(images) == 13
+    assert all(len(base64.b64decode(out["data"]["image/png"])) > 5_000 for out in images)
+    sentences = [
+        out["data"]["text/markdown"] for out in outputs if "text/markdown" in out.get("data", {})
+    ]
+    assert any(s.startswith("Loaded 30 runs") for s in sentences)
+    assert not any("skipped" in s for s in sentences)
+    assert not any("nan" in s for s in sentences)
+
+
+def test_analysis_helpers_on_the_stored_results(results_dir):
+    results = analysis.load_all(results_dir)
+    assert set(results["suite"]) == set(SUITES)
+    paper = analysis.suite_runs(results, "paper")
+    table = analysis.paper_figures_table(paper)
+    assert len(table) == 11
+    assert set(table["holds on"].str.split("/").str[1]) == {"3 seeds"}
+    row, trace = analysis.representative_run(results_dir, paper, True)
+    assert bool(row["trigger"]) and len(trace) == 31 * 3
+    median = sorted(paper[paper["trigger"]]["tracking_error_max_m"])[1]
+    assert row["tracking_error_max_m"] == median
+    tradeoff = analysis.trigger_tradeoff(
+        pd.concat([analysis.suite_runs(results, "trigger"), paper[~paper["trigger"]]])
+    )
+    assert sorted(tradeoff["threshold_m"].unique()) == [0.0, 1.0, 4.0]
+
+
+def test_paper_sentence_counts_holds():
+    table = pd.DataFrame(
+        [
+            {
+                "run": "a",
+                "figure": "x",
+                "paper": "<= 1 m",
+                "median": 0.5,
+                "worst": 0.9,
+                "holds on": "5/5 seeds",
+            },
+            {
+                "run": "b",
+                "figure": "y",
+                "paper": "<= 1 m",
+                "median": 1.2,
+                "worst": 1.5,
+                "holds on": "1/5 seeds",
+            },
+        ]
+    )
+    text = analysis.paper_sentence(table)
+    assert text.startswith("1 of 2 reported figures hold on every seed")
+    assert "b y: median 1.2, worst 1.5" in text
+
+
+def test_missing_results_folder_is_a_clear_error(tmp_path):
+    with pytest.raises(FileNotFoundError, match="formation-bench sweep"):
+        analysis.load_all(tmp_path)
+    assert os.path.isdir(tmp_path)
