@@ -29,7 +29,6 @@ import numpy as np
 
 from benchmarks.instants import record_instants
 from benchmarks.runner import run_closed_loop, warm_up_kernels
-from mpc.cost import reference_cost
 from mpc.scenario import get_scenario
 from optimizers import get_optimizer
 from optimizers.clustering import lloyd_kmeans, sklearn_kmeans
@@ -64,19 +63,7 @@ def measure(quick: bool = False) -> dict[str, Any]:
 
     def plain() -> None:
         for row in pop:
-            reference_cost(
-                row,
-                problem.state,
-                problem.block_of_step,
-                scenario.period_s,
-                scenario.rk4_substeps,
-                problem.neighbour_positions,
-                problem.desired_relative,
-                problem.reference,
-                scenario.w_dst,
-                scenario.w_trj,
-                scenario.n_uav,
-            )
+            problem.reference_cost(row)
 
     results["objective_pop30_plain_python_s"] = _median_seconds(plain, 1, 3 if quick else 7)
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mpc.cost import batch_cost, block_map
+from mpc.cost import batch_cost, block_map, reference_cost
 from mpc.model import rollout
 from mpc.scenario import EstimateExtension, Scenario
 from optimizers.base import Bounds
@@ -135,6 +135,15 @@ class LocalProblem:
             self.scenario.w_dst,
             self._w_centre,
         )
+
+    def reference_cost(self, decision: np.ndarray) -> float:
+        """Eq. (14) for one decision vector by the plain reference implementation."""
+        scenario = self.scenario
+        return reference_cost(
+            decision, self.state, self.block_of_step, scenario.period_s, scenario.rk4_substeps,
+            self.neighbour_positions, self.desired_relative, self.reference,
+            scenario.w_dst, scenario.w_trj, scenario.n_uav,
+        )  # fmt: skip
 
     def controls(self, decision: np.ndarray) -> np.ndarray:
         """Per-period controls ``(H, 2)`` of one decision vector."""
