@@ -80,7 +80,13 @@ def solve_time_ecdf_figure(frame: pd.DataFrame, factor: str = "optimizer") -> pl
     solves = solves[solves["solve_times_s"] > 0]
     order = _order(solves, factor, "solve_times_s")
     fig, ax = plt.subplots(figsize=(8.5, 4.8), constrained_layout=True)
-    palette = sns.color_palette("tab20" if len(order) > 10 else "tab10", len(order))
+    # distinct colours for every curve: tab20 repeats past 20 levels
+    if len(order) <= 10:
+        palette = sns.color_palette("tab10", len(order))
+    elif len(order) <= 20:
+        palette = sns.color_palette("tab20", len(order))
+    else:
+        palette = sns.color_palette("husl", len(order))
     sns.ecdfplot(
         data=solves,
         x="solve_times_s",
