@@ -180,6 +180,10 @@ def _local_worker_run(spec: RunSpec) -> RunResult:
     sweep killed with SIGKILL leaves no worker computing or idling behind.
     """
     global _PDEATHSIG_SET
+    if not _PDEATHSIG_SET:
+        # Ctrl-C reaches the whole process group: the sweep process stops cleanly and
+        # takes its workers down, so a worker must not die on SIGINT with a traceback.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     if not _PDEATHSIG_SET and sys.platform.startswith("linux"):
         try:
             import ctypes
