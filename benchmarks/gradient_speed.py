@@ -28,52 +28,21 @@ import json
 import os
 import platform
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.instants import record_instants
+from benchmarks.instants import ObservedOptimizer, record_instants
 from benchmarks.runner import warm_up_kernels
 from mpc.loop import simulate
 from mpc.metrics import compute_metrics
 from mpc.scenario import Scenario, get_scenario
 from optimizers import get_optimizer
-from optimizers.base import BatchObjective, Bounds, Budget, Optimizer, OptimizeResult
 
 DEFAULT_OPTIMIZERS = ("ipopt", "ltv-osqp", "modified-bso")
 TARGETS_MS = {"ipopt": 3.0, "ltv-osqp": 1.0}
 """Median per solve the issue asks for (per UAV per instant, 2-core machine)."""
-
-
-@dataclass(frozen=True)
-class _Timed(Optimizer):
-    """Times ``minimize`` and keeps what each solve reports."""
-
-    inner: Optimizer
-    times: list[float] = field(default_factory=list)
-    iterations: list[int] = field(default_factory=list)
-    nfev: list[int] = field(default_factory=list)
-
-    @property
-    def default_budget(self) -> Budget:
-        return self.inner.default_budget
-
-    def minimize(
-        self,
-        objective: BatchObjective,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        budget: Budget | None = None,
-        x0: np.ndarray | None = None,
-    ) -> OptimizeResult:
-        start = time.perf_counter()
-        result = self.inner.minimize(objective, bounds, rng, budget, x0)
-        self.times.append(time.perf_counter() - start)
-        self.iterations.append(int(result.nit))
-        self.nfev.append(int(result.nfev))
-        return result
 
 
 def _summary(seconds: list[float] | np.ndarray) -> dict[str, float]:
@@ -115,13 +84,13 @@ def measure(
     }
     for repeat in range(repeats):
         for name, optimizer in optimizers.items():
-            timed = _Timed(optimizer)
+            timed = ObservedOptimizer(optimizer)
             trace = simulate(scenario, timed, trigger=False, seed=repeat, optimizer_name=name)
             record = loop[name]
             record["loop"].extend(trace.solve_time_s[trace.solved].tolist())
-            record["optimizer"].extend(timed.times)
-            record["iterations"].extend(timed.iterations)
-            record["nfev"].extend(timed.nfev)
+            record["optimizer"].extend(solve.seconds for solve in timed.solves)
+            record["iterations"].extend(int(solve.result.nit) for solve in timed.solves)
+            record["nfev"].extend(int(solve.result.nfev) for solve in timed.solves)
             metrics = compute_metrics(trace) if not quick else {}
             record["metrics"].append(
                 {

@@ -8,6 +8,7 @@ an optimiser and keeps the problems it was given.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,9 +34,25 @@ class RecordedInstant:
 
 
 @dataclass(frozen=True)
-class _Recorder(Optimizer):
+class Solve:
+    """One call of an observed optimiser."""
+
+    objective: BatchObjective
+    """What it minimised (a :class:`LocalProblem` in the closed loop)."""
+    warm_start: np.ndarray | None
+    """The ``x0`` it was given."""
+    result: OptimizeResult
+    """What it returned."""
+    seconds: float
+    """Wall time of the ``minimize`` call alone."""
+
+
+@dataclass(frozen=True)
+class ObservedOptimizer(Optimizer):
+    """Runs ``inner`` unchanged and keeps every call (for recording and timing)."""
+
     inner: Optimizer
-    calls: list[tuple[LocalProblem, np.ndarray]] = field(default_factory=list)
+    solves: list[Solve] = field(default_factory=list)
 
     @property
     def default_budget(self) -> Budget:
@@ -49,9 +66,11 @@ class _Recorder(Optimizer):
         budget: Budget | None = None,
         x0: np.ndarray | None = None,
     ) -> OptimizeResult:
-        assert isinstance(objective, LocalProblem) and x0 is not None
-        self.calls.append((objective, x0.copy()))
-        return self.inner.minimize(objective, bounds, rng, budget, x0)
+        start = time.perf_counter()
+        result = self.inner.minimize(objective, bounds, rng, budget, x0)
+        seconds = time.perf_counter() - start
+        self.solves.append(Solve(objective, None if x0 is None else x0.copy(), result, seconds))
+        return result
 
 
 def record_instants(
@@ -65,13 +84,13 @@ def record_instants(
     last = max(steps)
     if last >= scenario.n_steps:
         raise ValueError(f"steps must be < n_steps={scenario.n_steps}, got {last}")
-    recorder = _Recorder(optimizer)
+    recorder = ObservedOptimizer(optimizer)
     short = scenario.with_overrides(n_steps=last + 1, settle_time_s=0.0)
     simulate(short, recorder, trigger=False, seed=seed)
     n_uav = scenario.n_uav
     wanted = set(steps)
     return [
-        RecordedInstant(index // n_uav, index % n_uav, problem, warm_start)
-        for index, (problem, warm_start) in enumerate(recorder.calls)
+        RecordedInstant(index // n_uav, index % n_uav, solve.objective, solve.warm_start)
+        for index, solve in enumerate(recorder.solves)
         if index // n_uav in wanted
     ]

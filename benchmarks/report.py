@@ -344,11 +344,13 @@ def write_figures(report: Report, results: pd.DataFrame, folder: Path) -> list[P
 
 
 def _write_figures(report: Report, results: pd.DataFrame, folder: Path) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import seaborn as sns
+
+    from benchmarks.result_figures import (
+        distribution_figure,
+        solve_time_ecdf_figure,
+        trigger_conditions_figure,
+    )
 
     folder.mkdir(parents=True, exist_ok=True)
     frame = prepare(results)
@@ -357,88 +359,18 @@ def _write_figures(report: Report, results: pd.DataFrame, folder: Path) -> list[
         describe_block(dict(zip(report.block_factors, values, strict=True)), frame) or "all runs"
         for values in frame[report.block_factors].itertuples(index=False)
     ]
-    order = levels_of(frame, factor)
-    n_blocks = frame["block"].nunique()
-    wrap = min(n_blocks, 3)
-    height = max(2.6, 0.3 * len(order) + 1.2)  # levels run down the y axis: names stay legible
+    block = "block" if frame["block"].nunique() > 1 else None
     written = []
-    sns.set_theme(style="whitegrid", context="notebook")
-    palette = "tab10" if len(order) <= 10 else "husl"
-
     for metric in [m for m in HEADLINE_METRICS if m in report.metrics]:
-        grid = sns.catplot(
-            data=frame,
-            y=factor,
-            x=metric,
-            col="block",
-            col_wrap=wrap if n_blocks > 1 else None,
-            kind="box",
-            order=order,
-            sharex=False,
-            height=height,
-            aspect=max(1.2, 5.5 / height),
-            showfliers=False,
-            color="#b7cde3",
-        )
-        grid.map_dataframe(
-            sns.stripplot, y=factor, x=metric, order=order, color="#1f3b5a", size=3, alpha=0.6
-        )
-        grid.set_titles("{col_name}")
-        grid.figure.suptitle(f"{metric} per {factor} (one point per run)", y=1.02)
-        written.append(_save(grid.figure, folder / f"distribution_{metric}.png", plt))
-
+        figure = distribution_figure(frame, metric, factor, block=block)
+        written.append(_save(figure, folder / f"distribution_{metric}.png", plt))
     if "solve_times_s" in frame.columns:
-        solves = frame[["block", factor, "solve_times_s"]].explode("solve_times_s")
-        solves = solves.dropna().astype({"solve_times_s": float})
-        solves = solves[solves["solve_times_s"] > 0]
-        if not solves.empty:
-            grid = sns.displot(
-                data=solves,
-                x="solve_times_s",
-                hue=factor,
-                hue_order=order,
-                palette=palette,
-                col="block",
-                col_wrap=wrap if n_blocks > 1 else None,
-                kind="ecdf",
-                log_scale=(True, False),
-                height=max(3.6, 0.24 * len(order)),
-                aspect=1.4,
-            )
-            grid.set_titles("{col_name}")
-            grid.set_axis_labels("solve time (s)", "fraction of solves")
-            grid.figure.suptitle("Solve-time ECDF (every solve of every run)", y=1.04)
-            written.append(_save(grid.figure, folder / "solve_time_ecdf.png", plt))
-
+        figure = solve_time_ecdf_figure(frame, factor, block=block)
+        written.append(_save(figure, folder / "solve_time_ecdf.png", plt))
     reasons = [c for c in frame.columns if c.startswith("trigger_") and c != "trigger"]
-    triggered = frame[frame["trigger"] == "on"]
-    if "solves_total" in frame.columns and not triggered.empty:
-        present = [level for level in order if level in set(triggered[factor])]
-        fig_height = max(3.5, 0.32 * len(present) * max(1, triggered["block"].nunique()) + 1.5)
-        fig, axes = plt.subplots(1, 2, figsize=(14.0, fig_height))
-        hue = "block" if triggered["block"].nunique() > 1 else None
-        sns.boxplot(
-            data=triggered, y=factor, x="solves_total", hue=hue, order=present, ax=axes[0],
-            showfliers=False, color="#b7cde3" if hue is None else None,
-        )  # fmt: skip
-        sns.stripplot(
-            data=triggered, y=factor, x="solves_total", hue=hue, order=present, ax=axes[0],
-            dodge=hue is not None, color="#1f3b5a" if hue is None else None, size=3,
-            legend=False,
-        )  # fmt: skip
-        axes[0].set_title("solves per run, all UAVs (trigger on)")
-        if reasons:
-            counts = triggered.groupby(factor, sort=False)[reasons].mean().reindex(present)
-            counts.columns = [c.removeprefix("trigger_") for c in counts.columns]
-            counts.iloc[::-1].plot.barh(ax=axes[1], stacked=True, width=0.7)
-            axes[1].set_title("mean solves per run by trigger condition held")
-            axes[1].set_xlabel("solves (a solve can count under several conditions)")
-            axes[1].legend(title="condition", fontsize="small", loc="upper left",
-                           bbox_to_anchor=(1.0, 1.0))  # fmt: skip
-        else:
-            axes[1].axis("off")
-        fig.tight_layout()
-        written.append(_save(fig, folder / "trigger_counts.png", plt))
+    if reasons and (frame["trigger"] == "on").any():
+        figure = trigger_conditions_figure(frame, factor)
+        written.append(_save(figure, folder / "trigger_counts.png", plt))
     return written
 
 

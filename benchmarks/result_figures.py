@@ -46,9 +46,9 @@ def distribution_figure(
     sns.set_theme(style="whitegrid")
     order = _order(frame, factor, metric)
     panels = sorted(frame[block].unique(), key=str) if block else [None]
-    width = max(6.0, 0.55 * len(order) + 2.5)
+    width = max(6.5, 0.6 * len(order) + 3.5)
     fig, axes = plt.subplots(
-        1, len(panels), figsize=(width * len(panels), 4.4), squeeze=False, constrained_layout=True
+        1, len(panels), figsize=(width * len(panels), 5.4), squeeze=False, constrained_layout=True
     )
     for ax, panel in zip(axes[0], panels, strict=True):
         data = frame if panel is None else frame[frame[block] == panel]
@@ -62,7 +62,7 @@ def distribution_figure(
         if metric in LOG_SCALE and len(values) and values.max() > 20 * values.min():
             ax.set_yscale("log")
         ax.set_xlabel(factor)
-        ax.set_ylabel(label(metric))
+        ax.set_ylabel(label(metric) if ax is axes[0][0] else "")
         ax.tick_params(axis="x", rotation=35)
         for tick in ax.get_xticklabels():
             tick.set_horizontalalignment("right")
@@ -72,14 +72,19 @@ def distribution_figure(
     return fig
 
 
-def solve_time_ecdf_figure(frame: pd.DataFrame, factor: str = "optimizer") -> plt.Figure:
-    """ECDF of every single solve time of every run, one curve per level of ``factor``."""
+def solve_time_ecdf_figure(
+    frame: pd.DataFrame, factor: str = "optimizer", block: str | None = None
+) -> plt.Figure:
+    """ECDF of every single solve time of every run, one curve per level of ``factor``.
+
+    With ``block`` (a column), one panel per value of it.
+    """
     sns.set_theme(style="whitegrid")
-    solves = frame[[factor, "solve_times_s"]].explode("solve_times_s").dropna()
+    columns = [factor, "solve_times_s", *([block] if block else [])]
+    solves = frame[columns].explode("solve_times_s").dropna()
     solves["solve_times_s"] = solves["solve_times_s"].astype(float)
     solves = solves[solves["solve_times_s"] > 0]
     order = _order(solves, factor, "solve_times_s")
-    fig, ax = plt.subplots(figsize=(8.5, 4.8), constrained_layout=True)
     # distinct colours for every curve: tab20 repeats past 20 levels
     if len(order) <= 10:
         palette = sns.color_palette("tab10", len(order))
@@ -87,22 +92,22 @@ def solve_time_ecdf_figure(frame: pd.DataFrame, factor: str = "optimizer") -> pl
         palette = sns.color_palette("tab20", len(order))
     else:
         palette = sns.color_palette("husl", len(order))
-    sns.ecdfplot(
-        data=solves,
-        x="solve_times_s",
-        hue=factor,
-        hue_order=order,
-        ax=ax,
-        log_scale=True,
-        palette=palette,
-    )
-    ax.set_xlabel("solve time (s), log scale")
-    ax.set_ylabel("fraction of solves")
-    ax.set_title("Solve-time ECDF (every solve of every run)", fontsize=11)
-    legend = ax.get_legend()
+    panels = sorted(solves[block].unique(), key=str) if block else [None]
+    fig, axes = plt.subplots(1, len(panels), figsize=(8.5 * len(panels), 4.8), squeeze=False,
+                             sharey=True, constrained_layout=True)  # fmt: skip
+    for ax, panel in zip(axes[0], panels, strict=True):
+        data = solves if panel is None else solves[solves[block] == panel]
+        sns.ecdfplot(data=data, x="solve_times_s", hue=factor, hue_order=order, ax=ax,
+                     log_scale=True, palette=palette, legend=ax is axes[0][-1])  # fmt: skip
+        ax.set_xlabel("solve time (s), log scale")
+        ax.set_ylabel("fraction of solves")
+        if panel is not None:
+            ax.set_title(f"{block} = {panel}", fontsize=10)
+    legend = axes[0][-1].get_legend()
     if legend is not None:
         legend.set_title(factor)
-        sns.move_legend(ax, "upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
+        sns.move_legend(axes[0][-1], "upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
+    fig.suptitle("Solve-time ECDF (every solve of every run)", fontsize=11)
     return fig
 
 

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from benchmarks.instants import ObservedOptimizer
 from mpc.loop import simulate
 from mpc.metrics import (
     closed_loop_cost,
@@ -67,21 +68,14 @@ def test_kept_plan_is_applied_between_solves():
         reference="straight",
         n_steps=40,
     )
-    solves = []
-
-    class Recording:
-        default_budget = FAST_BSO.default_budget
-
-        def minimize(self, objective, bounds, rng, budget=None, x0=None):
-            result = FAST_BSO.minimize(objective, bounds, rng, budget, x0)
-            solves.append((objective.uav, objective.controls(result.x)))
-            return result
-
-    trace = simulate(in_formation, Recording(), trigger=True, seed=2)
+    recording = ObservedOptimizer(FAST_BSO)
+    trace = simulate(in_formation, recording, trigger=True, seed=2)
     skipped = np.argwhere(~trace.solved)
     assert len(skipped) > 20, "a formation flying in place should skip most solves"
     for i in range(in_formation.n_uav):
-        plans = iter([controls for uav, controls in solves if uav == i])
+        plans = iter(
+            [s.objective.controls(s.result.x) for s in recording.solves if s.objective.uav == i]
+        )
         plan, start = None, 0
         for c in range(in_formation.n_steps):
             if trace.solved[c, i]:
