@@ -11,6 +11,7 @@ batch objective over the (blocked) control sequence with box bounds.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -78,6 +79,22 @@ def shifted_controls(plan: Plan, step: int) -> np.ndarray:
     return plan.controls[index]
 
 
+@functools.lru_cache(maxsize=64)
+def decision_space(scenario: Scenario) -> tuple[np.ndarray, Bounds]:
+    """Block index of every period and the box of the decision vector; shared, do not modify.
+
+    They depend on the scenario only, and a problem is built at every solve:
+    building them each time cost 33 µs, a tenth of an ``ltv-osqp`` solve. The
+    block map stays writable because numba compiles read-only arrays separately.
+    """
+    block_of_step = block_map(scenario.horizon_steps, scenario.n_blocks)
+    bounds = Bounds(
+        np.tile(scenario.control_lower, scenario.n_blocks),
+        np.tile(scenario.control_upper, scenario.n_blocks),
+    )
+    return block_of_step, bounds
+
+
 class LocalProblem:
     """UAV ``uav``'s problem of eq. (14) at one update instant, as a batch objective.
 
@@ -104,11 +121,7 @@ class LocalProblem:
         """Desired ``p_i - p_j`` over the horizon, ``(J, H, 2)``."""
         self.reference = reference
         """Desired formation-centre positions over the horizon, ``(H, 2)``."""
-        self.block_of_step = block_map(scenario.horizon_steps, scenario.n_blocks)
-        self.bounds = Bounds(
-            np.tile(scenario.control_lower, scenario.n_blocks),
-            np.tile(scenario.control_upper, scenario.n_blocks),
-        )
+        self.block_of_step, self.bounds = decision_space(scenario)
         n_uav = scenario.n_uav
         self._distance_targets = np.ascontiguousarray(neighbour_positions + desired_relative)
         self._centre_target = np.ascontiguousarray(
