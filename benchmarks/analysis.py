@@ -281,9 +281,10 @@ def trigger_tradeoff(runs: pd.DataFrame) -> pd.DataFrame:
         fields = json.loads(overrides) if overrides else {}
         return float(fields.get("eps_p", get_scenario("paper").eps_p))
 
+    n_uav = sum(1 for c in runs.columns if c.startswith("solves_uav"))
     frame = runs.assign(
         threshold_m=runs["scenario_overrides"].map(threshold),
-        solves_saved=1.0 - runs["solves_total"] / (runs["steps"] * 3),
+        solves_saved=1.0 - runs["solves_total"] / (runs["steps"] * n_uav),
     )
     frame.loc[~frame["trigger"].astype(bool), "threshold_m"] = 0.0
     return frame

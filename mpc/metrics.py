@@ -38,15 +38,6 @@ def distance_errors(trace: Trace) -> dict[str, np.ndarray]:
     }
 
 
-def pair_distances(trace: Trace) -> dict[str, np.ndarray]:
-    """Actual distance of every named pair, per instant."""
-    positions = trace.states[:, :, :2]
-    return {
-        name: np.linalg.norm(positions[:, i] - positions[:, j], axis=1)
-        for name, i, j in pair_names(trace.scenario.n_uav)
-    }
-
-
 def closed_loop_cost(trace: Trace) -> float:
     """Eq. (11) summed over the UAVs and integrated along the flown trajectory.
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mpc.cost import batch_cost, block_map, reference_cost
-from mpc.model import rollout
+from mpc.model import coast, rollout
 from mpc.scenario import EstimateExtension, Scenario
 from optimizers.base import Bounds
 
@@ -64,11 +64,9 @@ def estimate_positions(
     if index[0] < 0:
         raise ValueError(f"plan starts at instant {plan.start_step}, after {step}")
     positions = plan.states[np.minimum(index, horizon), :2].copy()
-    if extension == EstimateExtension.COAST:
-        beyond = np.maximum(index - horizon, 0) * period
-        _, _, theta, v = plan.states[horizon]
-        positions[:, 0] += v * np.cos(theta) * beyond
-        positions[:, 1] += v * np.sin(theta) * beyond
+    beyond = index > horizon
+    if extension == EstimateExtension.COAST and np.any(beyond):
+        positions[beyond] = coast(plan.states[horizon], (index[beyond] - horizon) * period)
     return positions
 
 
