@@ -16,8 +16,8 @@ from __future__ import annotations
 import abc
 import enum
 import math
-import time
 from dataclasses import dataclass, field
+from time import perf_counter
 from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
@@ -170,29 +170,34 @@ class EvaluationCounter:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         x = np.ascontiguousarray(x, dtype=np.float64)
-        if x.ndim != 2 or x.shape[1] != self._dim:
-            raise ValueError(f"objective input must have shape (n, {self._dim}), got {x.shape}")
-        n = x.shape[0]
+        shape = x.shape
+        if len(shape) != 2 or shape[1] != self._dim:
+            raise ValueError(f"objective input must have shape (n, {self._dim}), got {shape}")
+        n = shape[0]
         if n == 0:
             return np.zeros(0)
-        if n > self.remaining:
+        if self.max_evaluations is not None and n > self.max_evaluations - self.nfev:
             raise BudgetExhausted(f"{n} evaluations requested, {self.remaining} left")
-        start = time.perf_counter()
+        start = perf_counter()
         # np.array copies, so the caller never aliases a buffer the objective may reuse
-        f = np.array(self._objective(x), dtype=np.float64).reshape(-1)
-        self.objective_time_s += time.perf_counter() - start
+        f = np.array(self._objective(x), dtype=np.float64)
+        self.objective_time_s += perf_counter() - start
+        if f.ndim != 1:
+            f = f.reshape(-1)
         if f.shape[0] != n:
             raise ValueError(f"objective returned {f.shape[0]} costs for {n} points")
         # argmin returns the first NaN if there is one, and -inf if there is one, so a
         # finite minimum proves the only non-finite values are +inf (already the mapped
         # value): the common all-finite case costs one reduction instead of three.
-        i = int(f.argmin())
-        if not math.isfinite(f[i]):
+        i = f.argmin()
+        best = f[i]
+        if not math.isfinite(best):
             f[~np.isfinite(f)] = np.inf
-            i = int(f.argmin())
+            i = f.argmin()
+            best = f[i]
         self.nfev += n
-        if f[i] < self.best_f or self.best_x is None:
-            self.best_f = float(f[i])
+        if best < self.best_f or self.best_x is None:
+            self.best_f = float(best)
             self.best_x = x[i].copy()
         return f
 

@@ -187,12 +187,9 @@ def shi_select(
     return out
 
 
+@njit(cache=True)
 def logsig_factor(t_now: float, t_max: float, slope: float) -> float:
-    """Eq. (10) step-size factor ``logsig((0.5 T_max - T_now) / k)`` in (0, 1).
-
-    Plain Python: it is computed once per iteration, where a kernel call would
-    cost more than the arithmetic.
-    """
+    """Eq. (10) step-size factor ``logsig((0.5 T_max - T_now) / k)`` in (0, 1)."""
     return 1.0 / (1.0 + math.exp(-(0.5 * t_max - t_now) / slope))
 
 

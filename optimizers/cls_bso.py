@@ -49,21 +49,66 @@ from optimizers.base import (
 )
 from optimizers.bso_ops import BoundHandling, apply_bounds_inplace, greedy_select
 from optimizers.chaos import ChaoticMap, step_inplace
-from optimizers.original_bso import BSOState, OriginalBSO, advance, shi_ideas
-from optimizers.population import evaluate_prefix, progress
+from optimizers.original_bso import OriginalBSO, ShiSettings, shi_ideas
+from optimizers.population import (
+    RandomAhead,
+    evaluate_prefix,
+    initial_population,
+    iteration_randoms,
+    no_randoms,
+    progress,
+)
+
+
+class LocalSettings(NamedTuple):
+    """The local search's kernel arguments, fixed during a solve, in their order."""
+
+    map_id: int
+    """The :class:`~optimizers.chaos.ChaoticMap` of the local search sequence."""
+    n_local: int
+    """Local search points per iteration."""
+    radius_start: float
+    """Search radius at the first iteration, as a fraction of the range."""
+    radius_end: float
+    """Search radius at the last planned iteration."""
 
 
 class LocalSearchState(NamedTuple):
-    """The BSO population plus the chaotic local search's own state."""
+    """The BSO population, the last candidates and bookkeeping (arrays never modified in place).
 
-    bso: BSOState
-    """Population and bookkeeping of the underlying BSO."""
-    z: np.ndarray
-    """Current value of the chaotic sequence of every coordinate, shape (D,)."""
+    As in :class:`~optimizers.original_bso.BSOState`, an iteration's candidates
+    (N new ideas, then the local points) are selected at the start of the next
+    iteration, by :func:`select_with_local` in the same kernel call;
+    :meth:`population` applies the pending selection.
+    """
+
+    x: np.ndarray
+    """Ideas before the selection of ``candidates``, shape (N, D)."""
+    f: np.ndarray
+    """Their costs (+inf for ideas not evaluated for lack of budget)."""
+    candidates: np.ndarray
+    """The last N new ideas, the n_local local points and, as the last row, the current
+    value of the chaotic sequence of every coordinate (only that row at first)."""
+    costs: np.ndarray
+    """Costs of the ideas and local points (+inf if not evaluated); empty at first."""
+    settings: ShiSettings
+    """The BSO kernel arguments fixed for the solve."""
+    local: LocalSettings
+    """The local search's kernel arguments."""
+    randoms: RandomAhead
+    """Random numbers drawn ahead for the next iterations."""
+    replacements: int = 0
+    """Random-point centre replacements so far."""
     improvements: int = 0
-    """Local searches that replaced the best idea so far."""
+    """Local searches whose point was selected into the best idea's slot so far."""
+
+    def population(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(x, f)`` after the pending selection of the candidates."""
+        x, f, _ = select_with_local(self.x, self.f, self.candidates, self.costs, self.x.shape[0])
+        return x, f
 
 
+@njit(cache=True)
 def local_radius(start: float, end: float, iteration: int, t_max: int) -> float:
     """Geometric schedule: ``start`` at iteration 1, ``end`` at iteration ``t_max``."""
     return start * (end / start) ** progress(iteration, t_max)
@@ -108,62 +153,82 @@ def local_candidates(
 
 
 @njit(cache=True)
-def cls_candidates(
-    x: np.ndarray,
-    f: np.ndarray,
-    u: np.ndarray,
-    normals: np.ndarray,
-    n_clusters: int,
-    kmeans_max_iter: int,
-    p_replace: float,
-    p_one_cluster: float,
-    p_one_centre: float,
-    p_two_centres: float,
-    factor: float,
-    scale: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    bound_mode: int,
-    map_id: int,
-    z: np.ndarray,
-    n_local: int,
-    radius: float,
-    resample_local: np.ndarray,
-) -> tuple[np.ndarray, bool]:
-    """:func:`~optimizers.original_bso.shi_ideas` then :func:`local_candidates`, in one call.
-
-    The first 15 arguments are those of ``shi_ideas``; returns the stacked
-    ideas, local points and next ``z``, and whether a centre was replaced.
-    """
-    ideas, replaced = shi_ideas(
-        x, f, u, normals, n_clusters, kmeans_max_iter, p_replace, p_one_cluster, p_one_centre,
-        p_two_centres, factor, scale, lower, upper, bound_mode,
-    )  # fmt: skip
-    candidates = local_candidates(
-        ideas, x, f, map_id, z, n_local, radius, lower, upper, bound_mode, resample_local
-    )
-    return candidates, replaced
-
-
-@njit(cache=True)
 def select_with_local(
     x: np.ndarray, f: np.ndarray, candidates: np.ndarray, costs: np.ndarray, n_ideas: int
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Slot-wise greedy selection of the ideas, then the best local point into the best's slot.
 
-    ``candidates`` and ``costs`` hold the N ideas and then the local points.
-    The best local point replaces the member in the slot that held the best
-    idea before this iteration only if it is strictly better than that
-    slot's member after the greedy selection. Returns ``(x, f, 1 if it did)``.
+    ``candidates`` holds ``n_ideas`` ideas and then the local points (further
+    rows are ignored), ``costs`` one cost for each of these (none: nothing to
+    select). The best local point replaces the member in the slot that held
+    the best idea before this selection only if it is strictly better than
+    that slot's member after the greedy selection. Returns ``(x, f, 1 if it
+    did)``, new arrays.
     """
+    n_costs = costs.shape[0]
+    if n_costs == 0:
+        return x.copy(), f.copy(), 0
     slot = np.argmin(f)
     new_x, new_f, _ = greedy_select(x, f, candidates[:n_ideas], costs[:n_ideas])
+    if n_costs == n_ideas:
+        return new_x, new_f, 0
     k = n_ideas + np.argmin(costs[n_ideas:])
     if costs[k] < new_f[slot]:
         new_x[slot] = candidates[k]
         new_f[slot] = costs[k]
         return new_x, new_f, 1
     return new_x, new_f, 0
+
+
+@njit(cache=True)
+def cls_iteration(
+    x: np.ndarray,
+    f: np.ndarray,
+    candidates: np.ndarray,
+    costs: np.ndarray,
+    u: np.ndarray,
+    normals: np.ndarray,
+    resample_local: np.ndarray,
+    iteration: int,
+    map_id: int,
+    n_local: int,
+    radius_start: float,
+    radius_end: float,
+    t_max: int,
+    slope: float,
+    n_clusters: int,
+    kmeans_max_iter: int,
+    p_replace: float,
+    p_one_cluster: float,
+    p_one_centre: float,
+    p_two_centres: float,
+    scale: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    bound_mode: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """One iteration besides the evaluations: ``(x, f, candidates, 1 if the local point won)``.
+
+    :func:`select_with_local` of the last ``candidates``, then
+    :func:`~optimizers.original_bso.shi_ideas` and :func:`local_candidates`
+    around the selected population's best, from the sequence value in the
+    last row of ``candidates``. The arguments from ``map_id`` to
+    ``radius_end`` are the fields of :class:`LocalSettings`, the rest those of
+    :class:`~optimizers.original_bso.ShiSettings`.
+    """
+    n = x.shape[0]
+    x, f, improved = select_with_local(x, f, candidates, costs, n)
+    z = candidates[candidates.shape[0] - 1]
+    x, f, ideas = shi_ideas(
+        x, f, candidates[:0], costs[:0], u, normals, iteration, t_max, slope, n_clusters,
+        kmeans_max_iter, p_replace, p_one_cluster, p_one_centre, p_two_centres, scale, lower,
+        upper, bound_mode,
+    )  # fmt: skip
+    radius = local_radius(radius_start, radius_end, iteration, t_max)
+    out = local_candidates(
+        ideas, x, f, map_id, z, n_local, radius, lower, upper, bound_mode, resample_local
+    )
+    return x, f, out, improved
 
 
 @dataclass(frozen=True)
@@ -203,7 +268,10 @@ class ChaoticLocalSearchBSO(OriginalBSO):
         return self.population_size
 
     def result_info(self, state: LocalSearchState) -> dict[str, Any]:  # type: ignore[override]
-        return {**super().result_info(state.bso), "local_search_improvements": state.improvements}
+        return {
+            "random_replacements": state.replacements,
+            "local_search_improvements": state.improvements,
+        }
 
     def init(
         self,
@@ -213,8 +281,20 @@ class ChaoticLocalSearchBSO(OriginalBSO):
         x0: np.ndarray | None,
         max_iterations: int,
     ) -> LocalSearchState:  # type: ignore[override]
-        bso = super().init(counter, bounds, rng, x0, max_iterations)
-        return LocalSearchState(bso=bso, z=rng.random(bounds.dim))
+        x, f = initial_population(counter, bounds, rng, self.population_size, x0)
+        n, d = x.shape
+        local = LocalSettings(
+            int(self.local_map), self.n_local, self.local_radius_start, self.local_radius_end
+        )
+        return LocalSearchState(
+            x=x,
+            f=f,
+            candidates=rng.random((1, d)),
+            costs=np.empty(0),
+            settings=self.shi_settings(bounds, max_iterations),
+            local=local,
+            randoms=no_randoms(self.uniforms_per_step(n, d), (n, d)),
+        )
 
     def step(
         self,
@@ -224,20 +304,21 @@ class ChaoticLocalSearchBSO(OriginalBSO):
         rng: np.random.Generator,
         iteration: int,
     ) -> LocalSearchState:
-        bso = state.bso
-        n, d = bso.x.shape
-        resample = self.bound_handling is BoundHandling.RESAMPLE
-        candidates, replaced = cls_candidates(
-            *self.shi_arguments(bso, rng, iteration),
-            int(self.local_map),
-            state.z,
-            self.n_local,
-            local_radius(self.local_radius_start, self.local_radius_end, iteration, bso.t_max),
-            rng.random((self.n_local, d)) if resample else bso.x,
+        settings = state.settings
+        randoms, u, normals = iteration_randoms(state.randoms, rng, iteration, settings.t_max)
+        resample_local = (
+            rng.random((self.n_local, bounds.dim))
+            if self.bound_handling is BoundHandling.RESAMPLE
+            else state.x  # not read
         )
+        x, f, candidates, improved = cls_iteration(
+            state.x, state.f, state.candidates, state.costs, u, normals, resample_local,
+            iteration, *state.local, *settings,
+        )  # fmt: skip
         # one objective call for the ideas and the local points (ideas first under a short budget)
         costs = evaluate_prefix(counter, candidates[:-1])
-        x, f, improved = select_with_local(bso.x, bso.f, candidates[:-1], costs, n)
+        replaced = bool(u[self.n_clusters] < self.p_replace)
         return LocalSearchState(
-            advance(bso, x, f, int(replaced)), candidates[-1], state.improvements + improved
-        )
+            x, f, candidates, costs, settings, state.local, randoms,
+            state.replacements + replaced, state.improvements + improved,
+        )  # fmt: skip

@@ -15,10 +15,8 @@ off the algorithm is Shi's BSO without its random-point centre replacement.
 
 from __future__ import annotations
 
-import math
-import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -37,38 +35,57 @@ from optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
     chaotic_candidates,
     cluster_centres,
-    cluster_population_packed,
     distinct_indices,
-    generate_ideas,
     greedy_select,
-    install_best,
-    logsig_factor,
-    random_centre,
 )
 from optimizers.chaos import ChaoticMap
 from optimizers.clustering import DEFAULT_MAX_ITER, ClusteringBackend, sklearn_kmeans
+from optimizers.modified_bso_kernels import (
+    KernelSettings,
+    ideas_from_clusters,
+    modified_bso_iteration,
+)
+from optimizers.population import (
+    RandomAhead,
+    evaluate_prefix,
+    initial_population,
+    iteration_randoms,
+    no_randoms,
+    step_scale,
+)
 
 
-@dataclass(frozen=True)
-class ModifiedBSOState:
-    """Population and bookkeeping between iterations (arrays are never modified in place)."""
+class ModifiedBSOState(NamedTuple):
+    """Population, the last batch of ideas, and bookkeeping (arrays are never modified in place).
+
+    The slot-wise selection of an iteration's ideas is applied at the start of
+    the next iteration, inside the same compiled call as its clustering and
+    idea generation: an iteration then costs one kernel call besides the
+    objective. :meth:`population` applies the pending selection.
+
+    A NamedTuple rather than a frozen dataclass: it is built once per
+    iteration, and its constructor costs a third as much.
+    """
 
     x: np.ndarray
-    """Population, shape (N, D)."""
+    """Population before the selection of ``ideas``, shape (N, D)."""
     f: np.ndarray
-    """Costs of the population (+inf for members not evaluated for lack of budget)."""
-    t_max: int
-    """Planned iterations: T_max of the logsig schedule."""
-    lower: np.ndarray
-    """Lower bounds (a private writable copy: numba compiles read-only arrays separately)."""
-    upper: np.ndarray
-    """Upper bounds (same reason)."""
-    scale: np.ndarray
-    """Per-coordinate multiplier of the eq. (10) step, shape (D,)."""
-    clustering_time_s: float = 0.0
-    """Wall time spent clustering so far (k-means and picking each cluster's best member)."""
+    """Its costs (+inf for members not evaluated for lack of budget)."""
+    ideas: np.ndarray
+    """The last iteration's ideas, each competing for its slot, shape (N, D); 0 rows at first."""
+    idea_costs: np.ndarray
+    """Their costs (+inf for ideas not evaluated for lack of budget)."""
+    settings: KernelSettings
+    """The kernel arguments fixed for the solve (T_max, bounds, step scale, configuration)."""
+    randoms: RandomAhead
+    """Random numbers drawn ahead for the next iterations."""
     replacements: int = 0
     """Chaotic replacements performed so far."""
+
+    def population(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(x, f)`` after the pending slot-wise selection of ``ideas``."""
+        x, f, _ = greedy_select(self.x, self.f, self.ideas, self.idea_costs)
+        return x, f
 
 
 @dataclass(frozen=True)
@@ -184,10 +201,27 @@ class ModifiedBSO(PopulationOptimizer[ModifiedBSOState]):
         return self.population_size
 
     def result_info(self, state: ModifiedBSOState) -> dict[str, Any]:
-        return {
-            "clustering_time_s": state.clustering_time_s,
-            "chaotic_replacements": state.replacements,
-        }
+        return {"chaotic_replacements": state.replacements}
+
+    def kernel_settings(self, bounds: Bounds, t_max: int) -> KernelSettings:
+        """The kernel arguments fixed for a solve over ``bounds`` planning ``t_max`` iterations."""
+        return KernelSettings(
+            t_max=int(t_max),
+            slope=self.slope,
+            n_clusters=self.n_clusters,
+            kmeans_max_iter=self.kmeans_max_iter,
+            all_centre=self.all_centre_weighting,
+            weight_map=int(self.weight_map),
+            n_weight_iterations=self.n_weight_iterations,
+            normalise=self.normalise_weights,
+            p_one_cluster=self.p_one_cluster,
+            p_one_centre=self.p_one_centre,
+            p_two_centres=self.p_two_centres,
+            scale=step_scale(bounds, self.step_scale, self.step_relative_to_range),
+            lower=np.array(bounds.lower),
+            upper=np.array(bounds.upper),
+            bound_mode=int(self.bound_handling),
+        )
 
     def init(
         self,
@@ -198,24 +232,17 @@ class ModifiedBSO(PopulationOptimizer[ModifiedBSOState]):
         max_iterations: int,
     ) -> ModifiedBSOState:
         """N uniform points (row 0 = ``x0`` if given), evaluated in one call within the budget."""
-        n = self.population_size
-        x = bounds.sample(rng, n)
-        if x0 is not None:
-            x[0] = x0
-        f = np.full(n, math.inf)
-        n_eval = min(n, counter.remaining)
-        f[:n_eval] = counter(x[:n_eval])
-        scale = self.step_scale * (
-            bounds.width if self.step_relative_to_range else np.ones(bounds.dim)
-        )
-        return ModifiedBSOState(
-            x=x,
-            f=f,
-            t_max=int(max_iterations),
-            lower=np.array(bounds.lower),
-            upper=np.array(bounds.upper),
-            scale=np.ascontiguousarray(scale, dtype=np.float64),
-        )
+        x, f = initial_population(counter, bounds, rng, self.population_size, x0)
+        n, d = x.shape
+        randoms = no_randoms(self.uniforms_per_step(n, d), (n, d))
+        settings = self.kernel_settings(bounds, max_iterations)
+        return ModifiedBSOState(x, f, np.empty((0, d)), np.empty(0), settings, randoms)
+
+    def uniforms_per_step(self, n: int, d: int) -> int:
+        """Length of one iteration's uniforms (the layout is in :meth:`step`)."""
+        width = self.n_clusters if self.all_centre_weighting else SHI_UNIFORMS_PER_IDEA
+        resample = self.bound_handling is BoundHandling.RESAMPLE
+        return self.n_clusters + 2 + d + n * (width + 1) + (n * d if resample else 0)
 
     def step(
         self,
@@ -227,75 +254,39 @@ class ModifiedBSO(PopulationOptimizer[ModifiedBSOState]):
     ) -> ModifiedBSOState:
         n, d = state.x.shape
         m = self.n_clusters
-        width = m if self.all_centre_weighting else SHI_UNIFORMS_PER_IDEA
-        resample = self.bound_handling is BoundHandling.RESAMPLE
-        # One draw of uniforms, laid out as: k-means seeds (m) | p_r0 | replaced cluster |
-        # cr(0) (D) | idea seeds (N x width) | rand (N) | resample values (N x D, if used).
-        # The layout does not depend on which branches are taken, so runs stay comparable.
-        o_cr = m + 2
-        o_idea = o_cr + d
-        o_rand = o_idea + n * width
-        o_res = o_rand + n
-        u = rng.random(o_res + (n * d if resample else 0))
-        normals = rng.standard_normal((n, d))
-
-        start = time.perf_counter()
-        if self.clustering is ClusteringBackend.COMPILED:
-            packed = cluster_population_packed(state.x, state.f, u[:m], self.kmeans_max_iter)
-            labels, centre_index, sizes = packed[:n], packed[n : n + m], packed[n + m :]
-        else:
-            first = state.x[distinct_indices(u[:m], n)]
-            labels, _ = sklearn_kmeans(state.x, first, self.kmeans_max_iter)
-            centre_index, sizes = cluster_centres(labels, state.f, m)
-        clustering_time = time.perf_counter() - start
-
-        x, f = state.x, state.f
-        replacements = state.replacements
+        settings = state.settings
+        # One row of uniforms per iteration, laid out as: k-means seeds (m) | p_r0 |
+        # replaced cluster | cr(0) (D) | idea seeds (N x (m or 7)) | rand (N) | resample
+        # values (N x D, if used), and N x D normals. The layout does not depend on which
+        # branches are taken, so runs stay comparable.
+        randoms, u, normals = iteration_randoms(state.randoms, rng, iteration, settings.t_max)
         # Replacement needs all n_r candidates; when fewer evaluations remain it is
-        # skipped and the rest of the budget goes to the ideas.
-        if self.chaos_replacement and u[m] < self.p_replace and counter.remaining >= self.n_replace:
-            slot = random_centre(centre_index, u[m + 1])
-            candidates = chaotic_candidates(
-                int(self.replacement_map), u[o_cr:o_idea], self.n_replace, state.lower, state.upper
-            )
-            x, f = install_best(x, f, slot, candidates, counter(candidates))
-            replacements += 1
-
-        # the replacement may have used the last evaluations: then no ideas are made
-        n_eval = min(n, counter.remaining)
-        if n_eval > 0:
-            ideas = generate_ideas(
-                x,
-                labels,
-                centre_index,
-                sizes,
-                u[o_idea:o_rand].reshape(n, width),
-                self.all_centre_weighting,
-                int(self.weight_map),
-                self.n_weight_iterations,
-                self.normalise_weights,
-                self.p_one_cluster,
-                self.p_one_centre,
-                self.p_two_centres,
-                logsig_factor(float(iteration), float(state.t_max), self.slope),
-                u[o_rand:o_res],
-                normals,
-                state.scale,
-                state.lower,
-                state.upper,
-                int(self.bound_handling),
-                u[o_res:].reshape(n, d) if resample else normals,  # not read unless resampling
-            )
-            evaluated = ideas[:n_eval]
-            x, f, _ = greedy_select(x, f, evaluated, counter(evaluated))
-        # direct construction: dataclasses.replace costs several microseconds per call
-        return ModifiedBSOState(
-            x=x,
-            f=f,
-            t_max=state.t_max,
-            lower=state.lower,
-            upper=state.upper,
-            scale=state.scale,
-            clustering_time_s=state.clustering_time_s + clustering_time,
-            replacements=replacements,
+        # skipped and the rest of the budget goes to the ideas. The candidates do not
+        # depend on the clustering, so they are made and evaluated before it.
+        replace = bool(
+            self.chaos_replacement and u[m] < self.p_replace and counter.remaining >= self.n_replace
         )
+        if replace:
+            candidates = chaotic_candidates(
+                int(self.replacement_map), u[m + 2 : m + 2 + d], self.n_replace, settings.lower,
+                settings.upper,
+            )  # fmt: skip
+            candidate_costs = counter(candidates)
+        else:  # placeholders of the right types, not read
+            candidates, candidate_costs = state.x, state.f
+        if self.clustering is ClusteringBackend.COMPILED:
+            x, f, ideas = modified_bso_iteration(
+                state.x, state.f, state.ideas, state.idea_costs, u, normals, replace, candidates,
+                candidate_costs, iteration, *settings,
+            )  # fmt: skip
+        else:
+            x, f = state.population()
+            labels, _ = sklearn_kmeans(x, x[distinct_indices(u[:m], n)], self.kmeans_max_iter)
+            centre_index, sizes = cluster_centres(labels, f, m)
+            x, f, ideas = ideas_from_clusters(
+                x, f, labels, centre_index, sizes, u, normals, replace, candidates,
+                candidate_costs, iteration, *settings,
+            )  # fmt: skip
+        # the replacement may have used the last evaluations: then no idea is evaluated
+        costs = evaluate_prefix(counter, ideas)
+        return ModifiedBSOState(x, f, ideas, costs, settings, randoms, state.replacements + replace)

@@ -71,35 +71,86 @@ from optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
     cluster_population,
     generate_ideas,
+    greedy_select,
     logsig_factor,
     nonempty,
     pick_index,
 )
 from optimizers.clustering import DEFAULT_MAX_ITER
-from optimizers.population import evaluate_and_select, initial_population, step_scale
+from optimizers.population import (
+    RandomAhead,
+    evaluate_prefix,
+    initial_population,
+    iteration_randoms,
+    no_randoms,
+    step_scale,
+)
 
 
-class BSOState(NamedTuple):
-    """Ideas and bookkeeping between iterations (arrays are never modified in place).
+class ShiSettings(NamedTuple):
+    """The arguments of :func:`shi_ideas` that stay fixed during a solve, in their order.
 
-    A NamedTuple rather than a frozen dataclass: it is built once per
-    iteration, and its constructor costs a third as much.
+    Built once per solve and passed as ``*settings``: a tuple argument would go
+    through numba's slow type inference at every call, separate scalars
+    through its fast path.
     """
 
-    x: np.ndarray
-    """Ideas, shape (N, D)."""
-    f: np.ndarray
-    """Their costs (+inf for ideas not evaluated for lack of budget)."""
     t_max: int
     """Planned iterations: T_max of the logsig schedule."""
+    slope: float
+    """k, slope of the logsig schedule."""
+    n_clusters: int
+    """m, k-means clusters."""
+    kmeans_max_iter: int
+    """Cap on Lloyd iterations."""
+    p_replace: float
+    """p_5a."""
+    p_one_cluster: float
+    """p_6b."""
+    p_one_centre: float
+    """p_6biii."""
+    p_two_centres: float
+    """p_6c."""
+    scale: np.ndarray
+    """Per-coordinate multiplier of the N(0, 1) step, shape (D,)."""
     lower: np.ndarray
     """Lower bounds (a private writable copy: numba compiles read-only arrays separately)."""
     upper: np.ndarray
     """Upper bounds (same reason)."""
-    scale: np.ndarray
-    """Per-coordinate multiplier of the N(0, 1) step, shape (D,)."""
+    bound_mode: int
+    """A :class:`~optimizers.bound_handling.BoundHandling` value."""
+
+
+class BSOState(NamedTuple):
+    """Ideas, the last batch of new ideas, and bookkeeping (arrays are never modified in place).
+
+    Step 7 (the slot-wise selection) of an iteration is applied at the start
+    of the next one, in the same compiled call as its steps 2-6, so that an
+    iteration costs one kernel call besides the objective; :meth:`population`
+    applies the pending selection. A NamedTuple rather than a frozen
+    dataclass: it is built once per iteration, and its constructor costs a
+    third as much.
+    """
+
+    x: np.ndarray
+    """Ideas before the selection of ``new_ideas``, shape (N, D)."""
+    f: np.ndarray
+    """Their costs (+inf for ideas not evaluated for lack of budget)."""
+    new_ideas: np.ndarray
+    """The last iteration's new ideas, each competing for its slot, (N, D); 0 rows at first."""
+    new_costs: np.ndarray
+    """Their costs (+inf for ideas not evaluated for lack of budget)."""
+    settings: ShiSettings
+    """The kernel arguments fixed for the solve (T_max, bounds, step scale, configuration)."""
+    randoms: RandomAhead
+    """Random numbers drawn ahead for the next iterations."""
     replacements: int = 0
     """Random-point centre replacements so far."""
+
+    def population(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(x, f)`` after the pending slot-wise selection of ``new_ideas``."""
+        x, f, _ = greedy_select(self.x, self.f, self.new_ideas, self.new_costs)
+        return x, f
 
 
 @njit(cache=True)
@@ -132,27 +183,35 @@ def uniforms_per_iteration(n: int, d: int, n_clusters: int) -> int:
 def shi_ideas(
     x: np.ndarray,
     f: np.ndarray,
+    new_ideas: np.ndarray,
+    new_costs: np.ndarray,
     u: np.ndarray,
     normals: np.ndarray,
+    iteration: int,
+    t_max: int,
+    slope: float,
     n_clusters: int,
     kmeans_max_iter: int,
     p_replace: float,
     p_one_cluster: float,
     p_one_centre: float,
     p_two_centres: float,
-    factor: float,
     scale: np.ndarray,
     lower: np.ndarray,
     upper: np.ndarray,
     bound_mode: int,
-) -> tuple[np.ndarray, bool]:
-    """Steps 2-6 of Shi's BSO in one kernel: ``(N new ideas, whether a centre was replaced)``.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 7 of the last iteration, then steps 2-6 of Shi's BSO: ``(x, f, ideas)``.
 
-    ``u`` holds, in this order: the k-means seeds (m), the p_5a draw, the
-    replaced cluster, the random point (D), the idea-selection uniforms
-    (N x 7, see :data:`~optimizers.bso_ops.SHI_UNIFORMS_PER_IDEA`), ``rand`` (N)
-    and, for RESAMPLE bound handling only, N x D resample values. ``normals``
-    is N x D. Fused so that an iteration costs one kernel call.
+    ``(x, f)`` are the ideas after the slot-wise selection of ``new_ideas``
+    (costs ``new_costs``), and ``ideas`` the N new ones made from them, with
+    the step factor of ``iteration`` out of ``t_max``. ``u`` holds, in this
+    order: the k-means seeds (m), the p_5a draw, the replaced cluster, the
+    random point (D), the idea-selection uniforms (N x 7, see
+    :data:`~optimizers.bso_ops.SHI_UNIFORMS_PER_IDEA`), ``rand`` (N) and, for
+    RESAMPLE bound handling only, N x D resample values. ``normals`` is N x D.
+    The arguments from ``t_max`` on are the fields of :class:`ShiSettings`.
+    Fused so that an iteration costs one kernel call.
     """
     n, d = x.shape
     m = n_clusters
@@ -160,10 +219,10 @@ def shi_ideas(
     ideas_at = point_at + d
     rand_at = ideas_at + n * SHI_UNIFORMS_PER_IDEA
     end = rand_at + n
+    x, f, _ = greedy_select(x, f, new_ideas, new_costs)
     labels, centres, sizes = cluster_population(x, f, u[:m], kmeans_max_iter)
     sources = x
-    replaced = u[m] < p_replace
-    if replaced:
+    if u[m] < p_replace:
         point = lower + u[point_at:ideas_at] * (upper - lower)
         sources, centres = replace_centre(x, centres, u[m + 1], point)
     resample_uniforms = u[end:].reshape(n, d) if u.shape[0] > end else normals
@@ -180,7 +239,7 @@ def shi_ideas(
         p_one_cluster,
         p_one_centre,
         p_two_centres,
-        factor,
+        logsig_factor(iteration, t_max, slope),
         u[rand_at:end],
         normals,
         scale,
@@ -189,7 +248,7 @@ def shi_ideas(
         bound_mode,
         resample_uniforms,
     )
-    return ideas, replaced
+    return x, f, ideas
 
 
 @dataclass(frozen=True)
@@ -258,14 +317,37 @@ class OriginalBSO(PopulationOptimizer[BSOState]):
     ) -> BSOState:
         """N uniform ideas (row 0 = ``x0`` if given), evaluated in one batch within the budget."""
         x, f = initial_population(counter, bounds, rng, self.population_size, x0)
+        n, d = x.shape
         return BSOState(
             x=x,
             f=f,
-            t_max=int(max_iterations),
+            new_ideas=np.empty((0, d)),
+            new_costs=np.empty(0),
+            settings=self.shi_settings(bounds, max_iterations),
+            randoms=no_randoms(self.uniforms_per_step(n, d), (n, d)),
+        )
+
+    def shi_settings(self, bounds: Bounds, t_max: int) -> ShiSettings:
+        """The kernel arguments fixed for a solve over ``bounds`` planning ``t_max`` iterations."""
+        return ShiSettings(
+            t_max=int(t_max),
+            slope=self.slope,
+            n_clusters=self.n_clusters,
+            kmeans_max_iter=self.kmeans_max_iter,
+            p_replace=self.p_replace,
+            p_one_cluster=self.p_one_cluster,
+            p_one_centre=self.p_one_centre,
+            p_two_centres=self.p_two_centres,
+            scale=step_scale(bounds, self.step_scale, self.step_relative_to_range),
             lower=np.array(bounds.lower),
             upper=np.array(bounds.upper),
-            scale=step_scale(bounds, self.step_scale, self.step_relative_to_range),
+            bound_mode=int(self.bound_handling),
         )
+
+    def uniforms_per_step(self, n: int, d: int) -> int:
+        """Length of one iteration's uniforms (the layout is in :func:`shi_ideas`)."""
+        resample = self.bound_handling is BoundHandling.RESAMPLE
+        return uniforms_per_iteration(n, d, self.n_clusters) + (n * d if resample else 0)
 
     def step(
         self,
@@ -275,52 +357,11 @@ class OriginalBSO(PopulationOptimizer[BSOState]):
         rng: np.random.Generator,
         iteration: int,
     ) -> BSOState:
-        ideas, replaced = self.propose(state, rng, iteration)
-        x, f = evaluate_and_select(counter, state.x, state.f, ideas)
-        return advance(state, x, f, replaced)
-
-    def propose(
-        self, state: BSOState, rng: np.random.Generator, iteration: int
-    ) -> tuple[np.ndarray, int]:
-        """Steps 2-6 of one iteration: ``(N new ideas, 1 if a centre was replaced else 0)``.
-
-        The ideas are not evaluated; :meth:`step` evaluates them and applies the
-        slot-wise greedy selection (step 7).
-        """
-        ideas, replaced = shi_ideas(*self.shi_arguments(state, rng, iteration))
-        return ideas, int(replaced)
-
-    def shi_arguments(
-        self, state: BSOState, rng: np.random.Generator, iteration: int
-    ) -> tuple[Any, ...]:
-        """The arguments of :func:`shi_ideas` for one iteration, drawing its random numbers.
-
-        Two Generator calls: the uniforms (layout in :func:`shi_ideas`) and the normals.
-        """
-        n, d = state.x.shape
-        resample = self.bound_handling is BoundHandling.RESAMPLE
-        n_uniform = uniforms_per_iteration(n, d, self.n_clusters) + (n * d if resample else 0)
-        return (
-            state.x,
-            state.f,
-            rng.random(n_uniform),
-            rng.standard_normal((n, d)),
-            self.n_clusters,
-            self.kmeans_max_iter,
-            self.p_replace,
-            self.p_one_cluster,
-            self.p_one_centre,
-            self.p_two_centres,
-            logsig_factor(float(iteration), float(state.t_max), self.slope),
-            state.scale,
-            state.lower,
-            state.upper,
-            int(self.bound_handling),
+        settings = state.settings
+        randoms, u, normals = iteration_randoms(state.randoms, rng, iteration, settings.t_max)
+        x, f, ideas = shi_ideas(
+            state.x, state.f, state.new_ideas, state.new_costs, u, normals, iteration, *settings
         )
-
-
-def advance(state: BSOState, x: np.ndarray, f: np.ndarray, replaced: int) -> BSOState:
-    """The state after an iteration that left population ``(x, f)``."""
-    return BSOState(
-        x, f, state.t_max, state.lower, state.upper, state.scale, state.replacements + replaced
-    )
+        costs = evaluate_prefix(counter, ideas)
+        replaced = bool(u[self.n_clusters] < self.p_replace)
+        return BSOState(x, f, ideas, costs, settings, randoms, state.replacements + replaced)

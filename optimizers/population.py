@@ -8,8 +8,10 @@ them evaluates a batch of new points that the budget may cut short.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from optimizers.base import Bounds, EvaluationCounter
 from optimizers.bso_ops import greedy_select
@@ -62,12 +64,61 @@ def evaluate_and_select(
     return new_x, new_f
 
 
+ROWS_AHEAD = 64
+"""Most iterations whose random numbers one Generator call draws."""
+
+
+class RandomAhead(NamedTuple):
+    """Uniforms and standard normals drawn ahead for the next iterations of a solve.
+
+    A Generator call costs about a microsecond besides its numbers, and the
+    numbers themselves come about three times cheaper per value in one large
+    call: together about 3 µs of a BSO iteration's 30 µs of own work at
+    N = 30. So :func:`iteration_randoms` draws each kind for up to
+    :data:`ROWS_AHEAD` iterations at once, one row per iteration. Which
+    numbers an iteration gets depends only on the seed, the planned
+    iterations and the row layout.
+    """
+
+    first_iteration: int
+    """Iteration whose numbers are row 0."""
+    uniforms: np.ndarray
+    """Uniforms in [0, 1), one row per iteration."""
+    normals: np.ndarray
+    """Standard normals, one block per iteration (shape ``(rows, *normal_shape)``)."""
+
+
+def no_randoms(n_uniforms: int, normal_shape: tuple[int, ...]) -> RandomAhead:
+    """An empty block: the first :func:`iteration_randoms` call draws."""
+    return RandomAhead(1, np.empty((0, n_uniforms)), np.empty((0, *normal_shape)))
+
+
+def iteration_randoms(
+    block: RandomAhead, rng: np.random.Generator, iteration: int, t_max: int
+) -> tuple[RandomAhead, np.ndarray, np.ndarray]:
+    """``(block, uniforms, normals)`` of ``iteration``, drawing a new block when needed.
+
+    A new block covers the planned iterations left (``t_max - iteration + 1``),
+    at least one and at most :data:`ROWS_AHEAD`, in two calls: all its
+    uniforms, then all its normals. The returned rows are views; the block's
+    arrays are never modified.
+    """
+    row = iteration - block.first_iteration
+    if not 0 <= row < block.uniforms.shape[0]:
+        rows = min(max(t_max - iteration + 1, 1), ROWS_AHEAD)
+        uniforms = rng.random((rows, block.uniforms.shape[1]))
+        normals = rng.standard_normal((rows, *block.normals.shape[1:]))
+        block, row = RandomAhead(iteration, uniforms, normals), 0
+    return block, block.uniforms[row], block.normals[row]
+
+
 def step_scale(bounds: Bounds, scale: float, relative_to_range: bool) -> np.ndarray:
     """Per-coordinate step multiplier: ``scale``, times the range when ``relative_to_range``."""
     factor = bounds.width if relative_to_range else np.ones(bounds.dim)
     return np.ascontiguousarray(scale * factor, dtype=np.float64)
 
 
+@njit(cache=True)
 def progress(iteration: int, t_max: int) -> float:
     """``(iteration - 1) / (t_max - 1)`` clipped to [0, 1]: 0 at the first iteration, 1 at the last.
 

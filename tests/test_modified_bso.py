@@ -12,6 +12,7 @@ from optimizers import (
     OPTIMIZERS,
     Bounds,
     Budget,
+    EvaluationCounter,
     ModifiedBSO,
     OptimizeResult,
     get_optimizer,
@@ -150,10 +151,31 @@ def test_replacement_evaluations_are_counted() -> None:
     assert ModifiedBSO(chaos_replacement=False).evaluations_per_step() == 30
 
 
-def test_info_reports_times() -> None:
+def test_info_reports_objective_time_and_replacements() -> None:
     res = solve(ModifiedBSO())
-    assert res.info["clustering_time_s"] > 0.0
     assert res.info["objective_time_s"] > 0.0
+    assert type(res.info["chaotic_replacements"]) is int
+
+
+@pytest.mark.parametrize("name", VARIANTS)
+def test_the_pending_selection_keeps_costs_and_improves_slots(name: str) -> None:
+    """The state defers each iteration's selection into the next kernel call; applied by hand,
+    every member's cost is its own, and a slot only gets worse by a chaotic replacement."""
+    optimizer = get_optimizer(name)
+    counter = EvaluationCounter(sphere, D, None)
+    rng = np.random.default_rng(4)
+    state = optimizer.init(counter, BOX, rng, None, 10)
+    previous = state.f.copy()
+    for iteration in range(1, 11):
+        replacements = state.replacements
+        state = optimizer.step(state, counter, BOX, rng, iteration)
+        x, f = state.population()
+        np.testing.assert_array_equal(sphere(x), f)
+        assert np.sum(f > previous) <= state.replacements - replacements
+        previous = f
+    if not optimizer.chaos_replacement:  # then the population keeps the best point found
+        assert f.min() == counter.best_f
+        np.testing.assert_array_equal(x[np.argmin(f)], counter.best_x)
 
 
 def test_nan_and_inf_costs_rank_below_finite_ones() -> None:
@@ -206,10 +228,14 @@ def test_other_settings_run_and_change_the_result(change: dict) -> None:
     def near_corner(x: np.ndarray) -> np.ndarray:  # ideas cross the bounds: handling matters
         return sphere(x - 4.8)
 
-    base = solve(ModifiedBSO(max_iterations=15), near_corner, seed=3)
-    other = solve(ModifiedBSO(max_iterations=15, **change), near_corner, seed=3)
-    assert not same_result(base, other)
-    assert other.fun < other.history_fun[0]
+    # over a few seeds: one setting may by chance leave a short run unchanged
+    changed = 0
+    for seed in range(3):
+        base = solve(ModifiedBSO(max_iterations=15), near_corner, seed=seed)
+        other = solve(ModifiedBSO(max_iterations=15, **change), near_corner, seed=seed)
+        changed += not same_result(base, other)
+        assert other.fun < other.history_fun[0]
+    assert changed > 0
 
 
 def test_sklearn_backend_gives_the_same_run() -> None:

@@ -12,6 +12,7 @@ from optimizers import (
     Bounds,
     Budget,
     ChaoticLocalSearchBSO,
+    EvaluationCounter,
     ModifiedBSO,
     OptimizeResult,
     OriginalBSO,
@@ -181,3 +182,22 @@ def test_modified_bso_with_every_other_map_is_registered() -> None:
         assert isinstance(opt, ModifiedBSO)
         assert opt.replacement_map is map_ and opt.weight_map is map_
         assert opt == ModifiedBSO(replacement_map=map_, weight_map=map_)
+
+
+@pytest.mark.parametrize("name", ["original-bso", "original-bso-range-step", "cls-bso"])
+def test_the_pending_selection_keeps_the_best_point(name: str) -> None:
+    """Each iteration's selection is deferred into the next kernel call; applied by hand, every
+    member's cost is its own, no slot gets worse, and the best member is the best point found."""
+    optimizer = get_optimizer(name)
+    counter = EvaluationCounter(shifted_rastrigin, D, None)
+    rng = np.random.default_rng(2)
+    state = optimizer.init(counter, BOX, rng, None, 12)
+    previous = state.population()[1]
+    for iteration in range(1, 13):
+        state = optimizer.step(state, counter, BOX, rng, iteration)
+        x, f = state.population()
+        np.testing.assert_array_equal(shifted_rastrigin(x), f)
+        assert np.all(f <= previous)
+        previous = f
+    assert f.min() == counter.best_f
+    np.testing.assert_array_equal(x[np.argmin(f)], counter.best_x)
