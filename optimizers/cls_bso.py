@@ -49,7 +49,8 @@ from optimizers.base import (
 )
 from optimizers.bso_ops import BoundHandling, apply_bounds_inplace, greedy_select
 from optimizers.chaos import ChaoticMap, step_inplace
-from optimizers.original_bso import OriginalBSO, ShiSettings, shi_ideas
+from optimizers.original_bso import OriginalBSO
+from optimizers.original_bso_kernels import ShiSettings, shi_ideas
 from optimizers.population import (
     RandomAhead,
     evaluate_prefix,

@@ -20,7 +20,7 @@ from optimizers import (
 )
 from optimizers.chaos import ChaoticMap
 from optimizers.cls_bso import local_radius
-from optimizers.original_bso import replace_centre
+from optimizers.original_bso_kernels import replace_centre
 
 D = 10
 BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
