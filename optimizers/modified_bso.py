@@ -11,6 +11,12 @@ replaces the slot's member only when strictly better.
 Switching off ``all_centre_weighting`` uses Shi's (2011) idea selection
 instead; switching off ``chaos_replacement`` drops the replacement. With both
 off the algorithm is Shi's BSO without its random-point centre replacement.
+
+Each iteration is one compiled call
+(:func:`~optimizers.modified_bso_kernels.modified_bso_iteration`) besides the
+objective calls, with the slot-wise selection deferred into the next call
+(see :class:`ModifiedBSOState`) and the random numbers drawn ahead
+(:func:`~optimizers.population.iteration_randoms`).
 """
 
 from __future__ import annotations
