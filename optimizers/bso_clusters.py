@@ -66,19 +66,6 @@ def cluster_population(
 
 
 @njit(cache=True)
-def cluster_population_packed(
-    population: np.ndarray, costs: np.ndarray, uniforms: np.ndarray, max_iter: int
-) -> np.ndarray:
-    """:func:`cluster_population` as one int64 array ``labels | centre_index | sizes``.
-
-    Returning one array instead of three saves two array conversions at the
-    Python boundary, which cost more than the arithmetic at this size.
-    """
-    labels, centre, sizes = cluster_population(population, costs, uniforms, max_iter)
-    return np.concatenate((labels, centre, sizes))
-
-
-@njit(cache=True)
 def nonempty(centre_index: np.ndarray) -> np.ndarray:
     """Indices of the non-empty clusters (those with ``centre_index >= 0``), ascending."""
     return np.flatnonzero(centre_index >= 0)

@@ -35,7 +35,6 @@ from optimizers.bound_handling import (  # noqa: F401
 from optimizers.bso_clusters import (  # noqa: F401
     cluster_centres,
     cluster_population,
-    cluster_population_packed,
     distinct_indices,
     nonempty,
     pick_index,

@@ -340,8 +340,6 @@ def test_cluster_population_matches_its_parts() -> None:
     for j in range(5):
         members = np.flatnonzero(ref == j)
         assert centre[j] == members[np.argmin(f[members])]
-    packed = ops.cluster_population_packed(x, f, u, 100)
-    np.testing.assert_array_equal(packed, np.concatenate([labels, centre, sizes]))
 
 
 def test_normalised_weights_sum_to_one_and_stay_in_the_hull() -> None:
