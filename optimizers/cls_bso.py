@@ -50,7 +50,7 @@ from optimizers.base import (
 from optimizers.bso_ops import BoundHandling, apply_bounds_inplace, greedy_select
 from optimizers.chaos import ChaoticMap, step_inplace
 from optimizers.original_bso import OriginalBSO
-from optimizers.original_bso_kernels import ShiSettings, shi_ideas
+from optimizers.original_bso_kernels import ShiSettings, shi_step
 from optimizers.population import (
     RandomAhead,
     evaluate_prefix,
@@ -211,19 +211,18 @@ def cls_iteration(
     """One iteration besides the evaluations: ``(x, f, candidates, 1 if the local point won)``.
 
     :func:`select_with_local` of the last ``candidates``, then
-    :func:`~optimizers.original_bso.shi_ideas` and :func:`local_candidates`
+    :func:`~optimizers.original_bso_kernels.shi_step` and :func:`local_candidates`
     around the selected population's best, from the sequence value in the
     last row of ``candidates``. The arguments from ``map_id`` to
     ``radius_end`` are the fields of :class:`LocalSettings`, the rest those of
-    :class:`~optimizers.original_bso.ShiSettings`.
+    :class:`~optimizers.original_bso_kernels.ShiSettings`.
     """
     n = x.shape[0]
     x, f, improved = select_with_local(x, f, candidates, costs, n)
     z = candidates[candidates.shape[0] - 1]
-    x, f, ideas = shi_ideas(
-        x, f, candidates[:0], costs[:0], u, normals, iteration, t_max, slope, n_clusters,
-        kmeans_max_iter, p_replace, p_one_cluster, p_one_centre, p_two_centres, scale, lower,
-        upper, bound_mode,
+    ideas = shi_step(
+        x, f, u, normals, iteration, t_max, slope, n_clusters, kmeans_max_iter, p_replace,
+        p_one_cluster, p_one_centre, p_two_centres, scale, lower, upper, bound_mode,
     )  # fmt: skip
     radius = local_radius(radius_start, radius_end, iteration, t_max)
     out = local_candidates(

@@ -205,7 +205,7 @@ class OriginalBSO(PopulationOptimizer[BSOState]):
         )
 
     def uniforms_per_step(self, n: int, d: int) -> int:
-        """Length of one iteration's uniforms (the layout is in :func:`shi_ideas`)."""
+        """Length of one iteration's uniforms (layout: :func:`.original_bso_kernels.shi_step`)."""
         resample = self.bound_handling is BoundHandling.RESAMPLE
         return uniforms_per_iteration(n, d, self.n_clusters) + (n * d if resample else 0)
 

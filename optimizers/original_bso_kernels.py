@@ -5,7 +5,7 @@ One iteration of :class:`~optimizers.original_bso.OriginalBSO` is one call of
 Python-level call into a kernel costs about as much as its arithmetic, so the
 selection of the previous ideas, the k-means step, the random-point centre
 replacement and the new ideas are fused. The chaotic-local-search BSO
-(:mod:`optimizers.cls_bso`) calls :func:`shi_ideas` from its own kernel. Like
+(:mod:`optimizers.cls_bso`) calls :func:`shi_step` from its own kernel. Like
 :mod:`optimizers.bso_ops`, the kernels are pure: random numbers come in as
 arrays and inputs are never modified.
 """
@@ -84,8 +84,73 @@ def replace_centre(
 
 
 def uniforms_per_iteration(n: int, d: int, n_clusters: int) -> int:
-    """Length of the uniforms :func:`shi_ideas` reads, without the resample values."""
+    """Length of the uniforms :func:`shi_step` reads, without the resample values."""
     return n_clusters + 2 + d + n * SHI_UNIFORMS_PER_IDEA + n
+
+
+@njit(cache=True)
+def shi_step(
+    x: np.ndarray,
+    f: np.ndarray,
+    u: np.ndarray,
+    normals: np.ndarray,
+    iteration: int,
+    t_max: int,
+    slope: float,
+    n_clusters: int,
+    kmeans_max_iter: int,
+    p_replace: float,
+    p_one_cluster: float,
+    p_one_centre: float,
+    p_two_centres: float,
+    scale: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    bound_mode: int,
+) -> np.ndarray:
+    """Steps 2-6 of Shi's BSO on the ideas ``(x, f)``: the N new ideas.
+
+    The step factor is that of ``iteration`` out of ``t_max``. ``u`` holds, in
+    this order: the k-means seeds (m), the p_5a draw, the replaced cluster,
+    the random point (D), the idea-selection uniforms (N x 7, see
+    :data:`~optimizers.bso_ops.SHI_UNIFORMS_PER_IDEA`), ``rand`` (N) and, for
+    RESAMPLE bound handling only, N x D resample values. ``normals`` is N x D.
+    The arguments from ``t_max`` on are the fields of :class:`ShiSettings`.
+    """
+    n, d = x.shape
+    m = n_clusters
+    point_at = m + 2
+    ideas_at = point_at + d
+    rand_at = ideas_at + n * SHI_UNIFORMS_PER_IDEA
+    end = rand_at + n
+    labels, centres, sizes = cluster_population(x, f, u[:m], kmeans_max_iter)
+    sources = x
+    if u[m] < p_replace:
+        point = lower + u[point_at:ideas_at] * (upper - lower)
+        sources, centres = replace_centre(x, centres, u[m + 1], point)
+    resample_uniforms = u[end:].reshape(n, d) if u.shape[0] > end else normals
+    return generate_ideas(
+        sources,
+        labels,
+        centres,
+        sizes,
+        u[ideas_at:rand_at].reshape(n, SHI_UNIFORMS_PER_IDEA),
+        False,
+        0,
+        0,
+        False,
+        p_one_cluster,
+        p_one_centre,
+        p_two_centres,
+        logsig_factor(iteration, t_max, slope),
+        u[rand_at:end],
+        normals,
+        scale,
+        lower,
+        upper,
+        bound_mode,
+        resample_uniforms,
+    )
 
 
 @njit(cache=True)
@@ -110,51 +175,16 @@ def shi_ideas(
     upper: np.ndarray,
     bound_mode: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Step 7 of the last iteration, then steps 2-6 of Shi's BSO: ``(x, f, ideas)``.
+    """Step 7 of the last iteration, then :func:`shi_step`, in one call: ``(x, f, ideas)``.
 
     ``(x, f)`` are the ideas after the slot-wise selection of ``new_ideas``
-    (costs ``new_costs``), and ``ideas`` the N new ones made from them, with
-    the step factor of ``iteration`` out of ``t_max``. ``u`` holds, in this
-    order: the k-means seeds (m), the p_5a draw, the replaced cluster, the
-    random point (D), the idea-selection uniforms (N x 7, see
-    :data:`~optimizers.bso_ops.SHI_UNIFORMS_PER_IDEA`), ``rand`` (N) and, for
-    RESAMPLE bound handling only, N x D resample values. ``normals`` is N x D.
-    The arguments from ``t_max`` on are the fields of :class:`ShiSettings`.
-    Fused so that an iteration costs one kernel call.
+    (costs ``new_costs``), ``ideas`` the N new ones made from them; the other
+    arguments are those of :func:`shi_step`. Fused so that an iteration costs
+    one kernel call.
     """
-    n, d = x.shape
-    m = n_clusters
-    point_at = m + 2
-    ideas_at = point_at + d
-    rand_at = ideas_at + n * SHI_UNIFORMS_PER_IDEA
-    end = rand_at + n
     x, f, _ = greedy_select(x, f, new_ideas, new_costs)
-    labels, centres, sizes = cluster_population(x, f, u[:m], kmeans_max_iter)
-    sources = x
-    if u[m] < p_replace:
-        point = lower + u[point_at:ideas_at] * (upper - lower)
-        sources, centres = replace_centre(x, centres, u[m + 1], point)
-    resample_uniforms = u[end:].reshape(n, d) if u.shape[0] > end else normals
-    ideas = generate_ideas(
-        sources,
-        labels,
-        centres,
-        sizes,
-        u[ideas_at:rand_at].reshape(n, SHI_UNIFORMS_PER_IDEA),
-        False,
-        0,
-        0,
-        False,
-        p_one_cluster,
-        p_one_centre,
-        p_two_centres,
-        logsig_factor(iteration, t_max, slope),
-        u[rand_at:end],
-        normals,
-        scale,
-        lower,
-        upper,
-        bound_mode,
-        resample_uniforms,
-    )
+    ideas = shi_step(
+        x, f, u, normals, iteration, t_max, slope, n_clusters, kmeans_max_iter, p_replace,
+        p_one_cluster, p_one_centre, p_two_centres, scale, lower, upper, bound_mode,
+    )  # fmt: skip
     return x, f, ideas

@@ -14,7 +14,7 @@ from optimizers.modified_bso_kernels import (
     ideas_from_clusters,
     modified_bso_iteration,
 )
-from optimizers.original_bso_kernels import ShiSettings, shi_ideas
+from optimizers.original_bso_kernels import ShiSettings, shi_ideas, shi_step
 from optimizers.population import ROWS_AHEAD, iteration_randoms, no_randoms
 
 
@@ -29,6 +29,7 @@ def trailing_parameters(kernel, count: int) -> tuple[str, ...]:
         (modified_bso_iteration, KernelSettings._fields),
         (ideas_from_clusters, KernelSettings._fields),
         (shi_ideas, ShiSettings._fields),
+        (shi_step, ShiSettings._fields),
         (cls_iteration, LocalSettings._fields + ShiSettings._fields),
     ],
 )
