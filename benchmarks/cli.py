@@ -16,12 +16,21 @@ from typing import Any, NoReturn
 
 import pandas as pd
 
-from benchmarks.outputs import write_metrics, write_text, write_trace
-from benchmarks.paper import comparison_rows, format_seed_table, format_table
-from benchmarks.runner import RunOutcome, run_closed_loop, write_figures, write_trigger_figure
-from mpc.reference import REFERENCE_PATHS
-from mpc.scenario import SCENARIOS, Scenario, get_scenario
-from optimizers import OPTIMIZERS, Optimizer, get_optimizer
+from formation_bench.benchmarks.analysis.paper import (
+    comparison_rows,
+    format_seed_table,
+    format_table,
+)
+from formation_bench.benchmarks.outputs import write_metrics, write_text, write_trace
+from formation_bench.benchmarks.runner import (
+    RunOutcome,
+    run_closed_loop,
+    write_figures,
+    write_trigger_figure,
+)
+from formation_bench.mpc.reference import REFERENCE_PATHS
+from formation_bench.mpc.scenario import SCENARIOS, Scenario, get_scenario
+from formation_bench.optimizers import OPTIMIZERS, Optimizer, get_optimizer
 
 DEFAULT_OPTIMIZER = "modified-bso"
 
@@ -249,7 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
     listing = sub.add_parser("list", help="registered optimizers and scenarios")
     listing.set_defaults(func=cmd_list)
 
-    from benchmarks.sweep_commands import add_sweep_commands  # sweep, report
+    from formation_bench.benchmarks.sweep_commands import add_sweep_commands  # sweep, report
 
     add_sweep_commands(sub)
     return parser

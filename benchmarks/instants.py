@@ -13,10 +13,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mpc.loop import simulate
-from mpc.problem import LocalProblem
-from mpc.scenario import Scenario
-from optimizers.base import BatchObjective, Bounds, Budget, Optimizer, OptimizeResult
+from formation_bench.mpc.loop import simulate
+from formation_bench.mpc.problem import LocalProblem
+from formation_bench.mpc.scenario import Scenario
+from formation_bench.optimizers.base import (
+    BatchObjective,
+    Bounds,
+    Budget,
+    Optimizer,
+    OptimizeResult,
+)
 
 
 @dataclass(frozen=True)

@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mpc.loop import Trace
-from mpc.trigger import TRIGGER_CONDITIONS
+from formation_bench.mpc.loop import Trace
+from formation_bench.mpc.trigger import TRIGGER_CONDITIONS
 
 
 def trace_frame(trace: Trace) -> pd.DataFrame:

@@ -9,14 +9,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from benchmarks import figures
-from benchmarks.outputs import trace_frame
-from mpc.cost import batch_cost
-from mpc.loop import Trace, simulate
-from mpc.metrics import compute_metrics, pair_names
-from mpc.model import rollout
-from mpc.scenario import Scenario
-from optimizers.base import Optimizer
+from formation_bench.benchmarks.analysis import figures
+from formation_bench.benchmarks.outputs import trace_frame
+from formation_bench.mpc.cost import batch_cost
+from formation_bench.mpc.loop import Trace, simulate
+from formation_bench.mpc.metrics import compute_metrics, pair_names
+from formation_bench.mpc.model import rollout
+from formation_bench.mpc.scenario import Scenario
+from formation_bench.optimizers.base import Optimizer
 
 
 @dataclass(frozen=True)

@@ -11,10 +11,10 @@ import os
 import sys
 import time
 
-from benchmarks.report import ReportError, make_report
-from benchmarks.store import StoreError
-from benchmarks.suite import SuiteError, load_suite, shipped_suites
-from benchmarks.sweep import DEFAULT_JOBS, SweepError, plan, run_sweep
+from formation_bench.benchmarks.analysis.report import ReportError, make_report
+from formation_bench.benchmarks.experiments.store import StoreError
+from formation_bench.benchmarks.experiments.suite import SuiteError, load_suite, shipped_suites
+from formation_bench.benchmarks.experiments.sweep import DEFAULT_JOBS, SweepError, plan, run_sweep
 
 USAGE_ERRORS = (SuiteError, SweepError, StoreError, ReportError)
 
@@ -46,7 +46,7 @@ def _guarded(command: str, func):
 def cmd_sweep(args: argparse.Namespace) -> int:
     suite = load_suite(args.suite)
     if args.dry_run:
-        from benchmarks.store import ResultStore
+        from formation_bench.benchmarks.experiments.store import ResultStore
 
         pending, summary = plan(suite, ResultStore(args.out))
         print(

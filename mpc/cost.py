@@ -22,7 +22,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from mpc.model import rk4_substep
+from formation_bench.mpc.model import rk4_substep
 
 
 @nb.njit(cache=True)

@@ -22,17 +22,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mpc.model import step_plant
-from mpc.problem import LocalProblem, Plan, coasting_plan, estimate_positions, shifted_controls
-from mpc.scenario import Scenario
-from mpc.trigger import (
+from formation_bench.mpc.model import step_plant
+from formation_bench.mpc.problem import (
+    LocalProblem,
+    Plan,
+    coasting_plan,
+    estimate_positions,
+    shifted_controls,
+)
+from formation_bench.mpc.scenario import Scenario
+from formation_bench.mpc.trigger import (
     TriggerDecision,
     control_condition,
     distance_condition,
     expiry_condition,
     tracking_condition,
 )
-from optimizers.base import Budget, Optimizer
+from formation_bench.optimizers.base import Budget, Optimizer
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Metrics of one closed-loop run, computed from its :class:`~mpc.loop.Trace`."""
+"""Metrics of one closed-loop run, computed from its :class:`~formation_bench.mpc.loop.Trace`."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from mpc.loop import Trace
+from formation_bench.mpc.loop import Trace
 
 
 def pair_names(n_uav: int) -> list[tuple[str, int, int]]:

@@ -4,7 +4,7 @@ A :class:`Plan` is what a UAV publishes after a solve: its control sequence
 over the horizon and the states it predicts. Neighbours turn it into an
 *estimate* (Section 2.2): the plan's predicted positions from the current
 instant on, extended past the plan's end by the scenario's
-:class:`~mpc.scenario.EstimateExtension` rule. :class:`LocalProblem` is the
+:class:`~formation_bench.mpc.scenario.EstimateExtension` rule. :class:`LocalProblem` is the
 problem of eq. (14) built from those estimates, exposed to optimisers as a
 batch objective over the (blocked) control sequence with box bounds.
 """
@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mpc.cost import batch_cost, block_map, reference_cost
-from mpc.model import coast, rollout
-from mpc.scenario import EstimateExtension, Scenario
-from optimizers.base import Bounds
+from formation_bench.mpc.cost import batch_cost, block_map, reference_cost
+from formation_bench.mpc.model import coast, rollout
+from formation_bench.mpc.scenario import EstimateExtension, Scenario
+from formation_bench.optimizers.base import Bounds
 
 
 @dataclass(frozen=True)

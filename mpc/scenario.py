@@ -15,8 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from mpc.reference import REFERENCE_PATHS, ReferencePath
-from optimizers.base import check_int, check_real, coerce_enum
+from formation_bench.mpc.reference import REFERENCE_PATHS, ReferencePath
+from formation_bench.optimizers.base import check_int, check_real, coerce_enum
+from formation_bench.plugins import SCENARIO_GROUP, Registry
 
 
 class FormationFrame(enum.StrEnum):
@@ -241,16 +242,34 @@ class Scenario:
 
 PAPER = Scenario()
 
-SCENARIOS: dict[str, Scenario] = {
-    "paper": PAPER,
-    "paper-straight": dataclasses.replace(PAPER, name="paper-straight", reference="straight"),
-    "paper-s-curve": dataclasses.replace(PAPER, name="paper-s-curve", reference="s-curve"),
-}
+
+def _check_scenario(name: str, scenario: Scenario) -> None:
+    if not isinstance(scenario, Scenario):
+        raise TypeError(f"{name!r}: registered scenarios must be Scenario instances")
+    if scenario.name != name:
+        raise ValueError(
+            f"scenario registered as {name!r} must have name={name!r}, got {scenario.name!r}"
+        )
+
+
+SCENARIOS: Registry[Scenario] = Registry("scenario", SCENARIO_GROUP, _check_scenario)
+"""Every registered scenario by name; plugins of the ``formation_bench.scenarios``
+entry-point group are loaded on first lookup."""
+
+
+def register_scenario(scenario: Scenario) -> Scenario:
+    """Register ``scenario`` under its ``name``; refuses a name already taken."""
+    return SCENARIOS.add(scenario.name, scenario)
+
+
+register_scenario(PAPER)
+register_scenario(dataclasses.replace(PAPER, name="paper-straight", reference="straight"))
+register_scenario(dataclasses.replace(PAPER, name="paper-s-curve", reference="s-curve"))
 
 
 def get_scenario(name: str, **overrides: Any) -> Scenario:
     """The scenario registered as ``name``, with fields replaced by ``overrides``."""
     if name not in SCENARIOS:
-        raise KeyError(f"unknown scenario {name!r}; registered: {', '.join(sorted(SCENARIOS))}")
+        raise SCENARIOS.unknown(name)
     scenario = SCENARIOS[name]
     return scenario.with_overrides(**overrides) if overrides else scenario

@@ -5,6 +5,8 @@
 #     text_representation:
 #       extension: .py
 #       format_name: percent
+#       format_version: '1.3'
+#       jupytext_version: 1.19.6
 #   kernelspec:
 #     display_name: Python 3 (ipykernel)
 #     language: python
@@ -17,8 +19,8 @@
 # This notebook reads the results of `formation-bench sweep` runs and draws the
 # paper's figures, the optimiser comparison, the ablation of the modified BSO and
 # the trigger trade-off. It computes no metric itself: the metrics come from the
-# results store, and the statistics from `benchmarks.report`. The sentence under
-# each figure is computed from the data.
+# results store, and the statistics from `formation_bench.benchmarks.analysis.report`.
+# The sentence under each figure is computed from the data.
 #
 # Produce the results (about 15 minutes on 2 cores for all four suites):
 #
@@ -44,15 +46,16 @@ import matplotlib.pyplot as plt
 import pandas as pd
 from IPython.display import Markdown, display
 
-from benchmarks import analysis, figures
-from benchmarks.report import analyse
-from benchmarks.result_figures import (
+from formation_bench.benchmarks.analysis import figures
+from formation_bench.benchmarks.analysis import notebook as analysis
+from formation_bench.benchmarks.analysis.figures import (
     distribution_figure,
     solve_time_ecdf_figure,
     solves_figure,
 )
-from mpc.metrics import pair_names
-from mpc.scenario import get_scenario
+from formation_bench.benchmarks.analysis.report import analyse
+from formation_bench.mpc.metrics import pair_names
+from formation_bench.mpc.scenario import get_scenario
 
 pd.set_option("display.precision", 3)
 results = analysis.load_all(RESULTS_DIR)
@@ -175,7 +178,7 @@ if not ablation.empty:
 if not ablation.empty:
     variants = sorted(ablation["optimizer"].unique())
     curves = analysis.convergence_curves(variants, seeds=CONVERGENCE_SEEDS)
-    show(analysis.convergence_figure(curves))
+    show(figures.convergence_figure(curves))
     say(analysis.convergence_sentence(curves))
 
 # %% [markdown]
@@ -191,5 +194,5 @@ if trigger_runs.empty:
 else:
     baseline = paper[~paper["trigger"].astype(bool)] if not paper.empty else paper
     tradeoff = analysis.trigger_tradeoff(pd.concat([trigger_runs, baseline], ignore_index=True))
-    show(analysis.trigger_tradeoff_figure(tradeoff))
+    show(figures.trigger_tradeoff_figure(tradeoff))
     say(analysis.trigger_sentence(tradeoff))

@@ -1,6 +1,6 @@
 """Optimisers behind one interface, and the registry of named configurations."""
 
-from optimizers.base import (
+from formation_bench.optimizers.base import (
     BatchObjective,
     Bounds,
     Budget,
@@ -10,7 +10,7 @@ from optimizers.base import (
     OptimizeResult,
     PopulationOptimizer,
 )
-from optimizers.registry import OPTIMIZERS, get_optimizer, optimizer_names, register
+from formation_bench.optimizers.registry import OPTIMIZERS, get_optimizer, optimizer_names, register
 
 __all__ = [
     "OPTIMIZERS",
@@ -29,7 +29,7 @@ __all__ = [
 
 # Imported after the registry so that optimiser modules can register themselves
 # without a circular import; the registrations below are the named configurations.
-from optimizers.modified_bso import ModifiedBSO
+from formation_bench.optimizers.modified_bso import ModifiedBSO
 
 register(
     "modified-bso",
@@ -60,10 +60,10 @@ register(
 __all__ += ["ModifiedBSO"]
 
 # Shi's original BSO, the PSOs and the chaotic variants (issue 3): named configurations.
-from optimizers.chaos import ChaoticMap  # noqa: E402 (after the registrations above)
-from optimizers.cls_bso import ChaoticLocalSearchBSO  # noqa: E402 (after the registrations above)
-from optimizers.original_bso import OriginalBSO  # noqa: E402 (after the registrations above)
-from optimizers.pso import PSO  # noqa: E402 (after the registrations above)
+from formation_bench.optimizers.chaos import ChaoticMap  # noqa: E402 (after the registrations above)
+from formation_bench.optimizers.cls_bso import ChaoticLocalSearchBSO  # noqa: E402 (after the registrations above)
+from formation_bench.optimizers.original_bso import OriginalBSO  # noqa: E402 (after the registrations above)
+from formation_bench.optimizers.pso import PSO  # noqa: E402 (after the registrations above)
 
 register(
     "original-bso",
@@ -115,20 +115,3 @@ for _map in ChaoticMap:
 del _map
 
 __all__ += ["PSO", "ChaoticLocalSearchBSO", "ChaoticMap", "OriginalBSO"]
-
-# Derivative-based baselines (issue 4): IPOPT via CasADi, and LTV-MPC QPs solved by OSQP.
-from optimizers.ipopt_solver import IpoptOptimizer  # noqa: E402 (after the registrations above)
-from optimizers.ltv_osqp import LtvOsqpOptimizer  # noqa: E402 (after the registrations above)
-
-register(
-    "ipopt",
-    IpoptOptimizer(),
-    "IPOPT (CasADi nlpsol) on eq. (14), single shooting, warm primal + dual start; baseline",
-)
-register(
-    "ltv-osqp",
-    LtvOsqpOptimizer(),
-    "Linear time-varying MPC: QP linearised about the shifted plan, OSQP, 1 SQP round; baseline",
-)
-
-__all__ += ["IpoptOptimizer", "LtvOsqpOptimizer"]

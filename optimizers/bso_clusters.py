@@ -1,6 +1,6 @@
 """BSO's clustering step: k-means of the population and each cluster's best member.
 
-Pure compiled functions like the rest of :mod:`optimizers.bso_ops` (which
+Pure compiled functions like the rest of :mod:`formation_bench.optimizers.bso_ops` (which
 re-exports them): random numbers come in as arrays of uniforms.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from optimizers.clustering import lloyd_kmeans_kernel
+from formation_bench.optimizers.clustering import lloyd_kmeans_kernel
 
 
 @njit(cache=True)

@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 # BoundHandling is re-exported: bound handling is one of the BSO operators
-from optimizers.bound_handling import (  # noqa: F401
+from formation_bench.optimizers.bound_handling import (  # noqa: F401
     BoundHandling,
     apply_bounds,
     apply_bounds_inplace,
@@ -32,7 +32,7 @@ from optimizers.bound_handling import (  # noqa: F401
 
 # The clustering-step operators live in their own module; bso_ops is the single
 # import point for every BSO operator.
-from optimizers.bso_clusters import (  # noqa: F401
+from formation_bench.optimizers.bso_clusters import (  # noqa: F401
     cluster_centres,
     cluster_population,
     distinct_indices,
@@ -40,7 +40,7 @@ from optimizers.bso_clusters import (  # noqa: F401
     pick_index,
     random_centre,
 )
-from optimizers.chaos import step_inplace
+from formation_bench.optimizers.chaos import step_inplace
 
 SHI_UNIFORMS_PER_IDEA = 7
 """Columns of the uniforms driving :func:`shi_select`, in this order:

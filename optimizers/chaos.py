@@ -33,7 +33,7 @@ from enum import IntEnum
 import numpy as np
 from numba import njit
 
-from optimizers.chaos_formulas import (
+from formation_bench.optimizers.chaos_formulas import (
     chebyshev_map,
     circle_map,
     gauss_map,

@@ -1,7 +1,7 @@
 """The formulas of the chaotic maps beyond the logistic and tent maps.
 
-Plain unguarded maps of (0, 1), one ``@njit`` function each; :mod:`optimizers.chaos`
-dispatches to them by :class:`~optimizers.chaos.ChaoticMap` id and guards
+Plain unguarded maps of (0, 1), one ``@njit`` function each; :mod:`formation_bench.optimizers.chaos`
+dispatches to them by :class:`~formation_bench.optimizers.chaos.ChaoticMap` id and guards
 their iterates. Maps whose textbook domain is another interval are conjugated
 onto (0, 1) inside their function. The trigonometric maps use :func:`sin_pi`,
 which vectorises in array loops where ``math.sin`` (a library call) does not.

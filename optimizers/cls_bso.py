@@ -7,7 +7,7 @@ searches of Gao's group, e.g. Gao et al., "Gravitational search algorithm
 combined with chaos for unconstrained numerical optimization", Applied
 Mathematics and Computation 231, 2014.)
 
-Every iteration is one iteration of :class:`~optimizers.original_bso.OriginalBSO`
+Every iteration is one iteration of :class:`~formation_bench.optimizers.original_bso.OriginalBSO`
 plus a chaotic local search of ``n_local`` points
 
     x_k = x_best + r_t (upper - lower) (2 z_k - 1),   k = 1..n_local,
@@ -24,7 +24,7 @@ point replaces the idea in ``x_best``'s slot if it is strictly better.
 
 Differences from CBSO as published: CBSO draws one of twelve maps at random
 for each search, here the map is a configuration field (any
-:class:`~optimizers.chaos.ChaoticMap`); CBSO shrinks the radius by a fixed
+:class:`~formation_bench.optimizers.chaos.ChaoticMap`); CBSO shrinks the radius by a fixed
 factor per iteration, here the schedule is tied to the planned iterations so
 that it spans the short budgets of an MPC solve.
 
@@ -40,18 +40,18 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
-from optimizers.base import (
+from formation_bench.optimizers.base import (
     Bounds,
     EvaluationCounter,
     check_int,
     check_real,
     coerce_enum,
 )
-from optimizers.bso_ops import BoundHandling, apply_bounds_inplace, greedy_select
-from optimizers.chaos import ChaoticMap, step_inplace
-from optimizers.original_bso import OriginalBSO
-from optimizers.original_bso_kernels import ShiSettings, shi_step
-from optimizers.population import (
+from formation_bench.optimizers.bso_ops import BoundHandling, apply_bounds_inplace, greedy_select
+from formation_bench.optimizers.chaos import ChaoticMap, step_inplace
+from formation_bench.optimizers.original_bso import OriginalBSO
+from formation_bench.optimizers.original_bso_kernels import ShiSettings, shi_step
+from formation_bench.optimizers.population import (
     RandomAhead,
     evaluate_prefix,
     initial_population,
@@ -65,7 +65,7 @@ class LocalSettings(NamedTuple):
     """The local search's kernel arguments, fixed during a solve, in their order."""
 
     map_id: int
-    """The :class:`~optimizers.chaos.ChaoticMap` of the local search sequence."""
+    """The :class:`~formation_bench.optimizers.chaos.ChaoticMap` of the local search sequence."""
     n_local: int
     """Local search points per iteration."""
     radius_start: float
@@ -77,7 +77,7 @@ class LocalSettings(NamedTuple):
 class LocalSearchState(NamedTuple):
     """The BSO population, the last candidates and bookkeeping (arrays never modified in place).
 
-    As in :class:`~optimizers.original_bso.BSOState`, an iteration's candidates
+    As in :class:`~formation_bench.optimizers.original_bso.BSOState`, an iteration's candidates
     (N new ideas, then the local points) are selected at the start of the next
     iteration, by :func:`select_with_local` in the same kernel call;
     :meth:`population` applies the pending selection.
@@ -211,11 +211,11 @@ def cls_iteration(
     """One iteration besides the evaluations: ``(x, f, candidates, 1 if the local point won)``.
 
     :func:`select_with_local` of the last ``candidates``, then
-    :func:`~optimizers.original_bso_kernels.shi_step` and :func:`local_candidates`
+    :func:`~formation_bench.optimizers.original_bso_kernels.shi_step` and :func:`local_candidates`
     around the selected population's best, from the sequence value in the
     last row of ``candidates``. The arguments from ``map_id`` to
     ``radius_end`` are the fields of :class:`LocalSettings`, the rest those of
-    :class:`~optimizers.original_bso_kernels.ShiSettings`.
+    :class:`~formation_bench.optimizers.original_bso_kernels.ShiSettings`.
     """
     n = x.shape[0]
     x, f, improved = select_with_local(x, f, candidates, costs, n)

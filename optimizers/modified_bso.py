@@ -13,10 +13,10 @@ instead; switching off ``chaos_replacement`` drops the replacement. With both
 off the algorithm is Shi's BSO without its random-point centre replacement.
 
 Each iteration is one compiled call
-(:func:`~optimizers.modified_bso_kernels.modified_bso_iteration`) besides the
+(:func:`~formation_bench.optimizers.modified_bso_kernels.modified_bso_iteration`) besides the
 objective calls, with the slot-wise selection deferred into the next call
 (see :class:`ModifiedBSOState`) and the random numbers drawn ahead
-(:func:`~optimizers.population.iteration_randoms`).
+(:func:`~formation_bench.optimizers.population.iteration_randoms`).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from optimizers.base import (
+from formation_bench.optimizers.base import (
     Bounds,
     Budget,
     EvaluationCounter,
@@ -36,22 +36,26 @@ from optimizers.base import (
     check_real,
     coerce_enum,
 )
-from optimizers.bound_handling import BoundHandling
-from optimizers.bso_ops import (
+from formation_bench.optimizers.bound_handling import BoundHandling
+from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
     chaotic_candidates,
     cluster_centres,
     distinct_indices,
     greedy_select,
 )
-from optimizers.chaos import ChaoticMap
-from optimizers.clustering import DEFAULT_MAX_ITER, ClusteringBackend, sklearn_kmeans
-from optimizers.modified_bso_kernels import (
+from formation_bench.optimizers.chaos import ChaoticMap
+from formation_bench.optimizers.clustering import (
+    DEFAULT_MAX_ITER,
+    ClusteringBackend,
+    sklearn_kmeans,
+)
+from formation_bench.optimizers.modified_bso_kernels import (
     KernelSettings,
     ideas_from_clusters,
     modified_bso_iteration,
 )
-from optimizers.population import (
+from formation_bench.optimizers.population import (
     RandomAhead,
     evaluate_prefix,
     initial_population,

@@ -1,10 +1,10 @@
-"""The modified BSO's iteration as compiled kernels (the driver is :mod:`optimizers.modified_bso`).
+"""The modified BSO's iteration as compiled kernels (driven by :mod:`.modified_bso`).
 
-One iteration of :class:`~optimizers.modified_bso.ModifiedBSO` is one call of
+One iteration of :class:`~formation_bench.optimizers.modified_bso.ModifiedBSO` is one call of
 :func:`modified_bso_iteration` besides the objective calls: at a population of
 30 a Python-level call into a kernel costs about as much as its arithmetic, so
 the selection of the previous ideas, the k-means step, the centre replacement
-and the new ideas are fused. Like :mod:`optimizers.bso_ops`, the kernels are
+and the new ideas are fused. Like :mod:`formation_bench.optimizers.bso_ops`, the kernels are
 pure: random numbers come in as arrays and inputs are never modified.
 """
 
@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from optimizers.bso_ops import (
+from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
     cluster_population,
     generate_ideas,
@@ -45,7 +45,7 @@ class KernelSettings(NamedTuple):
     all_centre: bool
     """All-centre weighting (eqs. 8-9), else Shi's idea selection."""
     weight_map: int
-    """f_hmap as a :class:`~optimizers.chaos.ChaoticMap` value."""
+    """f_hmap as a :class:`~formation_bench.optimizers.chaos.ChaoticMap` value."""
     n_weight_iterations: int
     """n_h."""
     normalise: bool
@@ -63,7 +63,7 @@ class KernelSettings(NamedTuple):
     upper: np.ndarray
     """Upper bounds (same reason)."""
     bound_mode: int
-    """A :class:`~optimizers.bound_handling.BoundHandling` value."""
+    """A :class:`~formation_bench.optimizers.bound_handling.BoundHandling` value."""
 
 
 @njit(cache=True)

@@ -41,7 +41,7 @@ the turn-rate bounds of the paper problem (+-0.25) that step is huge, which is
 why the modified BSO scales it by the range.
 
 The random numbers of one iteration are laid out as in
-:class:`~optimizers.modified_bso.ModifiedBSO` with all-centre weighting off,
+:class:`~formation_bench.optimizers.modified_bso.ModifiedBSO` with all-centre weighting off,
 the random point taking the place of the chaotic seed ``cr(0)``: with
 ``p_replace = 0`` and the same step settings the two produce identical runs,
 which the tests use to show that the ablation without both modifications is
@@ -55,7 +55,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from optimizers.base import (
+from formation_bench.optimizers.base import (
     Bounds,
     Budget,
     EvaluationCounter,
@@ -65,11 +65,15 @@ from optimizers.base import (
     check_real,
     coerce_enum,
 )
-from optimizers.bound_handling import BoundHandling
-from optimizers.bso_ops import greedy_select
-from optimizers.clustering import DEFAULT_MAX_ITER
-from optimizers.original_bso_kernels import ShiSettings, shi_ideas, uniforms_per_iteration
-from optimizers.population import (
+from formation_bench.optimizers.bound_handling import BoundHandling
+from formation_bench.optimizers.bso_ops import greedy_select
+from formation_bench.optimizers.clustering import DEFAULT_MAX_ITER
+from formation_bench.optimizers.original_bso_kernels import (
+    ShiSettings,
+    shi_ideas,
+    uniforms_per_iteration,
+)
+from formation_bench.optimizers.population import (
     RandomAhead,
     evaluate_prefix,
     initial_population,

@@ -1,12 +1,12 @@
-"""Shi's BSO iteration as compiled kernels (the driver is :mod:`optimizers.original_bso`).
+"""Shi's BSO iteration as compiled kernels (driven by :mod:`.original_bso`).
 
-One iteration of :class:`~optimizers.original_bso.OriginalBSO` is one call of
+One iteration of :class:`~formation_bench.optimizers.original_bso.OriginalBSO` is one call of
 :func:`shi_ideas` besides the objective call: at a population of 30 a
 Python-level call into a kernel costs about as much as its arithmetic, so the
 selection of the previous ideas, the k-means step, the random-point centre
 replacement and the new ideas are fused. The chaotic-local-search BSO
-(:mod:`optimizers.cls_bso`) calls :func:`shi_step` from its own kernel. Like
-:mod:`optimizers.bso_ops`, the kernels are pure: random numbers come in as
+(:mod:`formation_bench.optimizers.cls_bso`) calls :func:`shi_step` from its own kernel. Like
+:mod:`formation_bench.optimizers.bso_ops`, the kernels are pure: random numbers come in as
 arrays and inputs are never modified.
 """
 
@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from optimizers.bso_ops import (
+from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
     cluster_population,
     generate_ideas,
@@ -59,7 +59,7 @@ class ShiSettings(NamedTuple):
     upper: np.ndarray
     """Upper bounds (same reason)."""
     bound_mode: int
-    """A :class:`~optimizers.bound_handling.BoundHandling` value."""
+    """A :class:`~formation_bench.optimizers.bound_handling.BoundHandling` value."""
 
 
 @njit(cache=True)
@@ -113,7 +113,7 @@ def shi_step(
     The step factor is that of ``iteration`` out of ``t_max``. ``u`` holds, in
     this order: the k-means seeds (m), the p_5a draw, the replaced cluster,
     the random point (D), the idea-selection uniforms (N x 7, see
-    :data:`~optimizers.bso_ops.SHI_UNIFORMS_PER_IDEA`), ``rand`` (N) and, for
+    :data:`~formation_bench.optimizers.bso_ops.SHI_UNIFORMS_PER_IDEA`), ``rand`` (N) and, for
     RESAMPLE bound handling only, N x D resample values. ``normals`` is N x D.
     The arguments from ``t_max`` on are the fields of :class:`ShiSettings`.
     """

@@ -13,8 +13,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from optimizers.base import Bounds, EvaluationCounter
-from optimizers.bso_ops import greedy_select
+from formation_bench.optimizers.base import Bounds, EvaluationCounter
+from formation_bench.optimizers.bso_ops import greedy_select
 
 
 def initial_population(

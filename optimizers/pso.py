@@ -36,7 +36,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from optimizers.base import (
+from formation_bench.optimizers.base import (
     Bounds,
     Budget,
     EvaluationCounter,
@@ -46,10 +46,15 @@ from optimizers.base import (
     check_real,
     coerce_enum,
 )
-from optimizers.bound_handling import BoundHandling
-from optimizers.chaos import ChaoticMap, apply_map
-from optimizers.population import evaluate_and_select, initial_population
-from optimizers.pso_ops import chaotic_inertia, linear_inertia, move_swarm, next_iterates
+from formation_bench.optimizers.bound_handling import BoundHandling
+from formation_bench.optimizers.chaos import ChaoticMap, apply_map
+from formation_bench.optimizers.population import evaluate_and_select, initial_population
+from formation_bench.optimizers.pso_ops import (
+    chaotic_inertia,
+    linear_inertia,
+    move_swarm,
+    next_iterates,
+)
 
 
 class PSOState(NamedTuple):

@@ -1,6 +1,6 @@
 """Particle swarm update rules as pure, compiled functions.
 
-Like :mod:`optimizers.bso_ops`, every random number comes in as an array (the
+Like :mod:`formation_bench.optimizers.bso_ops`, every random number comes in as an array (the
 coefficients ``r1``, ``r2`` are uniforms or chaotic values in (0, 1)), inputs
 are never modified, and one kernel call moves the whole swarm.
 """
@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from optimizers.bound_handling import apply_bounds_inplace
-from optimizers.chaos import step_inplace
-from optimizers.population import progress
+from formation_bench.optimizers.bound_handling import apply_bounds_inplace
+from formation_bench.optimizers.chaos import step_inplace
+from formation_bench.optimizers.population import progress
 
 
 @njit(cache=True)
@@ -36,7 +36,7 @@ def move_swarm(
 
     ``v' = w v + c1 r1 (p - x) + c2 r2 (g - x)``, each component clamped to
     ``[-v_max, v_max]``; ``x' = x + v'`` brought back into the box by
-    ``bound_mode`` (a :class:`~optimizers.bound_handling.BoundHandling`
+    ``bound_mode`` (a :class:`~formation_bench.optimizers.bound_handling.BoundHandling`
     value). For a coordinate the bound handling moved, the velocity becomes
     the step actually taken, ``x'_repaired - x``, so a particle does not keep
     pushing through the wall it hit. ``r1``, ``r2`` are ``(N, D)``;

@@ -11,7 +11,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from optimizers.base import Optimizer
+from formation_bench.optimizers.base import Optimizer
+from formation_bench.plugins import OPTIMIZER_GROUP, Registry
 
 
 @dataclass(frozen=True)
@@ -26,18 +27,23 @@ class RegisteredOptimizer:
     """One line for ``formation-bench list``."""
 
 
-OPTIMIZERS: dict[str, RegisteredOptimizer] = {}
+def _check_entry(name: str, entry: RegisteredOptimizer) -> None:
+    if not dataclasses.is_dataclass(entry.optimizer) or isinstance(entry.optimizer, type):
+        raise TypeError(f"{name!r}: registered optimizers must be dataclass instances")
+    if not isinstance(entry.optimizer, Optimizer):
+        raise TypeError(
+            f"{name!r}: registered optimizers must implement formation_bench.optimizers.Optimizer"
+        )
+
+
+OPTIMIZERS: Registry[RegisteredOptimizer] = Registry("optimizer", OPTIMIZER_GROUP, _check_entry)
+"""Every registered optimiser by name; plugins of the ``formation_bench.optimizers``
+entry-point group are loaded on first lookup."""
 
 
 def register(name: str, optimizer: Optimizer, description: str) -> Optimizer:
     """Register ``optimizer`` under ``name``; refuses a name already taken."""
-    if not name or not name.replace("-", "").replace("_", "").isalnum():
-        raise ValueError(f"optimizer name must be alphanumeric with '-' or '_', got {name!r}")
-    if name in OPTIMIZERS:
-        raise ValueError(f"optimizer name {name!r} is already registered")
-    if not dataclasses.is_dataclass(optimizer):
-        raise TypeError(f"{name!r}: registered optimizers must be dataclass instances")
-    OPTIMIZERS[name] = RegisteredOptimizer(name, optimizer, description)
+    OPTIMIZERS.add(name, RegisteredOptimizer(name, optimizer, description))
     return optimizer
 
 
@@ -48,7 +54,7 @@ def get_optimizer(name: str, **overrides: Any) -> Optimizer:
     the allowed values; field values are validated by the dataclass itself.
     """
     if name not in OPTIMIZERS:
-        raise KeyError(f"unknown optimizer {name!r}; registered: {', '.join(sorted(OPTIMIZERS))}")
+        raise OPTIMIZERS.unknown(name)
     optimizer = OPTIMIZERS[name].optimizer
     if not overrides:
         return optimizer

@@ -6,7 +6,7 @@ being skipped.
 
 from __future__ import annotations
 
-from benchmarks import bbob, population_speed
+from formation_bench.benchmarks.perf import bbob, population_speed
 
 
 def test_bbob_runs_and_tabulates() -> None:

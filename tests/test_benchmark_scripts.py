@@ -5,7 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from benchmarks import scaling
+from formation_bench.benchmarks.perf import scaling
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -25,14 +25,14 @@ def test_scaling_script_reports_speedup_and_overhead(tmp_path, capsys, monkeypat
 
 def test_timing_suite_collects_every_optimizer_and_runs(tmp_path):
     listing = subprocess.run(
-        [sys.executable, "-m", "pytest", "benchmarks/timing", "--collect-only", "-q"],
+        [sys.executable, "-m", "pytest", "benchmarks/perf/timing", "--collect-only", "-q"],
         capture_output=True,
         text=True,
         cwd=ROOT,
         timeout=300,
     )
     assert listing.returncode == 0, listing.stdout + listing.stderr
-    from optimizers import OPTIMIZERS
+    from formation_bench.optimizers import OPTIMIZERS
 
     for name in OPTIMIZERS:
         assert f"test_solve_time[{name}-default]" in listing.stdout
@@ -43,8 +43,8 @@ def test_timing_suite_collects_every_optimizer_and_runs(tmp_path):
             "-m",
             "pytest",
             "-q",
-            "benchmarks/timing/test_solve_timing.py::test_solve_time[modified-bso-default]",
-            "benchmarks/timing/test_solve_timing.py::test_solve_time[pso-equal-1200]",
+            "benchmarks/perf/timing/test_solve_timing.py::test_solve_time[modified-bso-default]",
+            "benchmarks/perf/timing/test_solve_timing.py::test_solve_time[pso-equal-1200]",
             f"--benchmark-json={saved}",
         ],
         capture_output=True,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from optimizers.chaos import (
+from formation_bench.optimizers.chaos import (
     EDGE,
     TENT_SLOPE,
     ChaoticMap,

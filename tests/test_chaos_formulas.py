@@ -12,8 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from optimizers.chaos import ChaoticMap, chaotic_sequence, iterate_map
-from optimizers.chaos_formulas import (
+from formation_bench.optimizers.chaos import ChaoticMap, chaotic_sequence, iterate_map
+from formation_bench.optimizers.chaos_formulas import (
     CIRCLE_B,
     SINUSOIDAL_HIGH,
     SINUSOIDAL_LOW,

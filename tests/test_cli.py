@@ -7,7 +7,7 @@ import sys
 import pandas as pd
 import pytest
 
-from benchmarks.cli import main, parse_value
+from formation_bench.benchmarks.cli import main, parse_value
 
 METRIC_KEYS = {
     "optimizer",

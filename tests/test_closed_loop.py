@@ -3,18 +3,18 @@
 import numpy as np
 import pytest
 
-from benchmarks.instants import ObservedOptimizer
-from mpc.loop import simulate
-from mpc.metrics import (
+from formation_bench.benchmarks.instants import ObservedOptimizer
+from formation_bench.mpc.loop import simulate
+from formation_bench.mpc.metrics import (
     closed_loop_cost,
     compute_metrics,
     distance_errors,
     pair_names,
     tracking_error,
 )
-from mpc.model import rollout
-from mpc.scenario import get_scenario
-from optimizers import get_optimizer
+from formation_bench.mpc.model import rollout
+from formation_bench.mpc.scenario import get_scenario
+from formation_bench.optimizers import get_optimizer
 
 SHORT = get_scenario("paper", n_steps=30, settle_time_s=0.0)
 FAST_BSO = get_optimizer("modified-bso", max_iterations=10)

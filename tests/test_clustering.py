@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from optimizers.clustering import ClusteringBackend, kmeans, lloyd_kmeans, sklearn_kmeans
+from formation_bench.optimizers.clustering import (
+    ClusteringBackend,
+    kmeans,
+    lloyd_kmeans,
+    sklearn_kmeans,
+)
 
 
 def blobs(rng: np.random.Generator, n: int, d: int, m: int, spread: float) -> np.ndarray:

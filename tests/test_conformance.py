@@ -15,9 +15,15 @@ import math
 import numpy as np
 import pytest
 
-from benchmarks.instants import record_instants
-from mpc.scenario import get_scenario
-from optimizers import Bounds, Budget, PopulationOptimizer, get_optimizer, optimizer_names
+from formation_bench.benchmarks.instants import record_instants
+from formation_bench.mpc.scenario import get_scenario
+from formation_bench.optimizers import (
+    Bounds,
+    Budget,
+    PopulationOptimizer,
+    get_optimizer,
+    optimizer_names,
+)
 
 D = 10
 BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))

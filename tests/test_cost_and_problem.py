@@ -5,15 +5,15 @@ import math
 import numpy as np
 import pytest
 
-from mpc.cost import batch_cost, block_map
-from mpc.problem import (
+from formation_bench.mpc.cost import batch_cost, block_map
+from formation_bench.mpc.problem import (
     LocalProblem,
     Plan,
     coasting_plan,
     estimate_positions,
     shifted_controls,
 )
-from mpc.scenario import PAPER, EstimateExtension
+from formation_bench.mpc.scenario import PAPER, EstimateExtension
 
 
 def random_problem(rng, scenario):
@@ -82,7 +82,7 @@ def test_batch_cost_input_shape_is_checked():
 def make_plan(start_step=4):
     controls = np.tile([0.5, 0.1], (20, 1))
     state = np.array([0.0, 0.0, 0.3, 12.0])
-    from mpc.model import rollout
+    from formation_bench.mpc.model import rollout
 
     return Plan(start_step, controls, rollout(state, controls, 0.2, 1))
 

@@ -10,22 +10,22 @@ import numpy as np
 import osqp
 import pytest
 
-from benchmarks.cli import main as cli_main
-from benchmarks.instants import record_instants
-from mpc.loop import simulate
-from mpc.metrics import compute_metrics
-from mpc.problem import LocalProblem
-from mpc.scenario import PAPER, get_scenario
-from optimizers import OPTIMIZERS, Budget, PopulationOptimizer, get_optimizer
-from optimizers.casadi_model import (
+from formation_bench.benchmarks.cli import main as cli_main
+from formation_bench.benchmarks.instants import record_instants
+from formation_bench.mpc.loop import simulate
+from formation_bench.mpc.metrics import compute_metrics
+from formation_bench.mpc.problem import LocalProblem
+from formation_bench.mpc.scenario import PAPER, get_scenario
+from formation_bench.mpc.solvers.casadi_model import (
     ProblemShape,
     casadi_cost,
     pack_parameters,
     projected_gradient,
 )
-from optimizers.ipopt_solver import IpoptOptimizer
-from optimizers.ltv_cvxpy import CvxpyLtvQP
-from optimizers.ltv_osqp import LtvOsqpOptimizer
+from formation_bench.mpc.solvers.ipopt_solver import IpoptOptimizer
+from formation_bench.mpc.solvers.ltv_cvxpy import CvxpyLtvQP
+from formation_bench.mpc.solvers.ltv_osqp import LtvOsqpOptimizer
+from formation_bench.optimizers import OPTIMIZERS, Budget, PopulationOptimizer, get_optimizer
 
 SHORT = get_scenario("paper", n_steps=8, settle_time_s=0.0)
 PAPER_BOUNDS = LocalProblem(

@@ -7,15 +7,15 @@ import inspect
 import numpy as np
 import pytest
 
-from optimizers import Bounds, Budget, get_optimizer
-from optimizers.cls_bso import LocalSettings, cls_iteration
-from optimizers.modified_bso_kernels import (
+from formation_bench.optimizers import Bounds, Budget, get_optimizer
+from formation_bench.optimizers.cls_bso import LocalSettings, cls_iteration
+from formation_bench.optimizers.modified_bso_kernels import (
     KernelSettings,
     ideas_from_clusters,
     modified_bso_iteration,
 )
-from optimizers.original_bso_kernels import ShiSettings, shi_ideas, shi_step
-from optimizers.population import ROWS_AHEAD, iteration_randoms, no_randoms
+from formation_bench.optimizers.original_bso_kernels import ShiSettings, shi_ideas, shi_step
+from formation_bench.optimizers.population import ROWS_AHEAD, iteration_randoms, no_randoms
 
 
 def trailing_parameters(kernel, count: int) -> tuple[str, ...]:

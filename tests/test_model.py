@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from mpc.model import coast, rollout, rollout_batch, step_plant
+from formation_bench.mpc.model import coast, rollout, rollout_batch, step_plant
 
 
 def test_straight_line_with_constant_acceleration_is_exact():

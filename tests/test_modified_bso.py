@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from optimizers import (
+from formation_bench.optimizers import (
     OPTIMIZERS,
     Bounds,
     Budget,
@@ -18,10 +18,10 @@ from optimizers import (
     get_optimizer,
     register,
 )
-from optimizers import bso_ops as ops
-from optimizers.bso_ops import BoundHandling
-from optimizers.chaos import ChaoticMap, chaotic_sequence
-from optimizers.clustering import ClusteringBackend
+from formation_bench.optimizers import bso_ops as ops
+from formation_bench.optimizers.bso_ops import BoundHandling
+from formation_bench.optimizers.chaos import ChaoticMap, chaotic_sequence
+from formation_bench.optimizers.clustering import ClusteringBackend
 
 D = 10
 BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
@@ -332,7 +332,7 @@ def test_cluster_population_matches_its_parts() -> None:
     rng = np.random.default_rng(4)
     x, f, u = rng.random((30, 4)), rng.random(30), rng.random(5)
     labels, centre, sizes = ops.cluster_population(x, f, u, 100)
-    from optimizers.clustering import lloyd_kmeans
+    from formation_bench.optimizers.clustering import lloyd_kmeans
 
     ref, _ = lloyd_kmeans(x, x[ops.distinct_indices(u, 30)])
     np.testing.assert_array_equal(labels, ref)

@@ -14,9 +14,9 @@ import pandas as pd
 import pytest
 from nbclient import NotebookClient
 
-from benchmarks import analysis
-from benchmarks.suite import load_suite
-from benchmarks.sweep import run_sweep
+from formation_bench.benchmarks.analysis import notebook as analysis
+from formation_bench.benchmarks.experiments.suite import load_suite
+from formation_bench.benchmarks.experiments.sweep import run_sweep
 
 ROOT = Path(__file__).parents[1]
 SUITES = ("paper", "ablation", "comparison", "trigger")

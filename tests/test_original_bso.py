@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from optimizers import (
+from formation_bench.optimizers import (
     OPTIMIZERS,
     Bounds,
     Budget,
@@ -18,9 +18,9 @@ from optimizers import (
     OriginalBSO,
     get_optimizer,
 )
-from optimizers.chaos import ChaoticMap
-from optimizers.cls_bso import local_radius
-from optimizers.original_bso_kernels import replace_centre
+from formation_bench.optimizers.chaos import ChaoticMap
+from formation_bench.optimizers.cls_bso import local_radius
+from formation_bench.optimizers.original_bso_kernels import replace_centre
 
 D = 10
 BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))

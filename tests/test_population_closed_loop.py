@@ -11,10 +11,10 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks.cli import main
-from mpc.loop import simulate
-from mpc.scenario import get_scenario
-from optimizers import PopulationOptimizer, get_optimizer, optimizer_names
+from formation_bench.benchmarks.cli import main
+from formation_bench.mpc.loop import simulate
+from formation_bench.mpc.scenario import get_scenario
+from formation_bench.optimizers import PopulationOptimizer, get_optimizer, optimizer_names
 
 SHORT = get_scenario("paper", n_steps=6, settle_time_s=0.0)
 POPULATION = [n for n in optimizer_names() if isinstance(get_optimizer(n), PopulationOptimizer)]

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from optimizers import PSO, Bounds, Budget, get_optimizer
-from optimizers.bound_handling import BoundHandling
-from optimizers.chaos import ChaoticMap, chaotic_sequence
-from optimizers.population import progress
-from optimizers.pso_ops import chaotic_inertia, linear_inertia, move_swarm
+from formation_bench.optimizers import PSO, Bounds, Budget, get_optimizer
+from formation_bench.optimizers.bound_handling import BoundHandling
+from formation_bench.optimizers.chaos import ChaoticMap, chaotic_sequence
+from formation_bench.optimizers.population import progress
+from formation_bench.optimizers.pso_ops import chaotic_inertia, linear_inertia, move_swarm
 
 D = 10
 BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))

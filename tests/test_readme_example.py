@@ -5,9 +5,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mpc.loop import simulate
-from mpc.scenario import get_scenario
-from optimizers import OPTIMIZERS, Budget, get_optimizer
+from formation_bench.mpc.loop import simulate
+from formation_bench.mpc.scenario import get_scenario
+from formation_bench.optimizers import OPTIMIZERS, Bounds, Budget, get_optimizer
 
 
 def test_readme_optimizer_example_runs_in_the_closed_loop():
@@ -19,7 +19,7 @@ def test_readme_optimizer_example_runs_in_the_closed_loop():
         optimizer = get_optimizer("my-random-search")
         result = optimizer.minimize(
             lambda x: np.sum(x**2, axis=1),
-            bounds=__import__("optimizers").Bounds(-np.ones(3), np.ones(3)),
+            bounds=Bounds(-np.ones(3), np.ones(3)),
             rng=np.random.default_rng(0),
             budget=Budget(max_evaluations=95),
             x0=np.zeros(3),

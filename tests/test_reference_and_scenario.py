@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from mpc.reference import REFERENCE_PATHS, ReferencePath
-from mpc.scenario import PAPER, SCENARIOS, FormationFrame, Scenario, get_scenario
+from formation_bench.mpc.reference import REFERENCE_PATHS, ReferencePath
+from formation_bench.mpc.scenario import PAPER, SCENARIOS, FormationFrame, Scenario, get_scenario
 
 
 def test_straight_reference():

@@ -3,9 +3,9 @@
 import pandas as pd
 import pytest
 
-from benchmarks.cli import main
-from benchmarks.suite import parse_suite
-from benchmarks.sweep import run_sweep
+from formation_bench.benchmarks.cli import main
+from formation_bench.benchmarks.experiments.suite import parse_suite
+from formation_bench.benchmarks.experiments.sweep import run_sweep
 
 SUITE = """\
 name = "small"

@@ -4,8 +4,8 @@ import json
 
 import pandas as pd
 
-from benchmarks.cli import main
-from benchmarks.paper import PAPER_FIGURES, comparison_rows, format_table
+from formation_bench.benchmarks.analysis.paper import PAPER_FIGURES, comparison_rows, format_table
+from formation_bench.benchmarks.cli import main
 
 
 def test_reproduce_writes_both_runs_and_the_table(tmp_path, capsys):
@@ -61,7 +61,7 @@ def test_comparison_rows_read_the_right_metrics():
 
 
 def test_seed_table_counts_holds_per_figure():
-    from benchmarks.paper import format_seed_table
+    from formation_bench.benchmarks.analysis.paper import format_seed_table
 
     def run(track, solves):
         return [

@@ -10,11 +10,16 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from benchmarks.store import ResultStore, is_timing_column, load_results, load_traces
-from benchmarks.suite import parse_suite
-from benchmarks.sweep import SweepError, run_sweep
-from optimizers import OPTIMIZERS, Budget, Optimizer
-from optimizers.registry import RegisteredOptimizer
+from formation_bench.benchmarks.experiments.store import (
+    ResultStore,
+    is_timing_column,
+    load_results,
+    load_traces,
+)
+from formation_bench.benchmarks.experiments.suite import parse_suite
+from formation_bench.benchmarks.experiments.sweep import SweepError, run_sweep
+from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer
+from formation_bench.optimizers.registry import RegisteredOptimizer
 
 TINY = """\
 name = "tiny"

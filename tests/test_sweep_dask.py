@@ -3,10 +3,10 @@
 import pandas as pd
 import pytest
 
-from benchmarks.cli import main
-from benchmarks.store import is_timing_column, load_results
-from benchmarks.suite import parse_suite
-from benchmarks.sweep import SweepError, run_sweep
+from formation_bench.benchmarks.cli import main
+from formation_bench.benchmarks.experiments.store import is_timing_column, load_results
+from formation_bench.benchmarks.experiments.suite import parse_suite
+from formation_bench.benchmarks.experiments.sweep import SweepError, run_sweep
 
 distributed = pytest.importorskip("dask.distributed")
 
@@ -72,7 +72,7 @@ def test_dask_local_cluster_matches_the_local_path(tmp_path):
 
 
 def test_an_unreachable_scheduler_is_a_one_line_error(tmp_path, monkeypatch):
-    monkeypatch.setattr("benchmarks.sweep.SCHEDULER_TIMEOUT_S", 2)
+    monkeypatch.setattr("formation_bench.benchmarks.experiments.sweep.SCHEDULER_TIMEOUT_S", 2)
     suite = parse_suite(SUITE, tmp_path / "dask.toml")
     with pytest.raises(SweepError, match="cannot reach a Dask scheduler") as info:
         run_sweep(

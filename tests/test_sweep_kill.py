@@ -11,9 +11,9 @@ import pandas as pd
 import psutil
 import pytest
 
-from benchmarks.store import is_timing_column, load_results
-from benchmarks.suite import load_suite
-from benchmarks.sweep import run_sweep
+from formation_bench.benchmarks.experiments.store import is_timing_column, load_results
+from formation_bench.benchmarks.experiments.suite import load_suite
+from formation_bench.benchmarks.experiments.sweep import run_sweep
 
 SUITE = """\
 name = "kill"

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.cli import main
-from benchmarks.suite import (
+from formation_bench.benchmarks.cli import main
+from formation_bench.benchmarks.experiments.suite import (
     SuiteError,
     canonical_json,
     config_of,
@@ -18,10 +18,10 @@ from benchmarks.suite import (
     sha256_hex,
     shipped_suites,
 )
-from benchmarks.sweep import execute_run
-from mpc.loop import simulate
-from mpc.metrics import compute_metrics
-from optimizers import OPTIMIZERS
+from formation_bench.benchmarks.experiments.sweep import execute_run
+from formation_bench.mpc.loop import simulate
+from formation_bench.mpc.metrics import compute_metrics
+from formation_bench.optimizers import OPTIMIZERS
 
 GOOD = """\
 name = "t"
@@ -224,7 +224,8 @@ def test_entropy_is_128_bits_and_key_is_stable():
 
 def test_every_registered_configuration_hashes_the_same_in_any_process():
     code = (
-        "from optimizers import OPTIMIZERS; from benchmarks.suite import config_of, canonical_json;"
+        "from formation_bench.optimizers import OPTIMIZERS; "
+        "from formation_bench.benchmarks.experiments.suite import config_of, canonical_json;"
         "import hashlib; print({n: hashlib.sha256(canonical_json(config_of(r.optimizer)).encode())"
         ".hexdigest() for n, r in sorted(OPTIMIZERS.items())})"
     )

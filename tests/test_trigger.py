@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from mpc.trigger import (
+from formation_bench.mpc.trigger import (
     TriggerDecision,
     control_condition,
     distance_condition,

@@ -8,7 +8,8 @@ folder. So a cluster needs no shared file system, and the folder's lock keeps
 two sweeps from writing into it at once.
 
 A run's random streams come from ``SeedSequence(entropy)`` with ``entropy``
-derived from the run's identity (:attr:`benchmarks.suite.RunSpec.entropy`), so
+derived from the run's identity
+(:attr:`formation_bench.benchmarks.experiments.suite.RunSpec.entropy`), so
 results do not depend on queue order, worker count or which worker ran what.
 """
 
@@ -29,9 +30,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from benchmarks.outputs import trace_frame
-from benchmarks.runner import warm_up_kernels
-from benchmarks.store import (
+from formation_bench.benchmarks.experiments.store import (
     ResultStore,
     StoreBusy,
     git_info,
@@ -39,10 +38,12 @@ from benchmarks.store import (
     now,
     package_versions,
 )
-from benchmarks.suite import RunSpec, Suite
-from mpc.loop import simulate
-from mpc.metrics import compute_metrics
-from mpc.trigger import TRIGGER_CONDITIONS
+from formation_bench.benchmarks.experiments.suite import RunSpec, Suite
+from formation_bench.benchmarks.outputs import trace_frame
+from formation_bench.benchmarks.runner import warm_up_kernels
+from formation_bench.mpc.loop import simulate
+from formation_bench.mpc.metrics import compute_metrics
+from formation_bench.mpc.trigger import TRIGGER_CONDITIONS
 
 DEFAULT_JOBS = 2
 SCHEDULER_TIMEOUT_S = 20
@@ -71,7 +72,7 @@ def flatten_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
     """Metrics as flat columns: ``{"d12": x}`` under ``distance_error_max_m`` becomes
     ``distance_error_max_m_d12``, a per-UAV list becomes ``..._uav1``, ``..._uav2``, ...
 
-    Whatever keys :func:`mpc.metrics.compute_metrics` returns are kept.
+    Whatever keys :func:`formation_bench.mpc.metrics.compute_metrics` returns are kept.
     """
     flat: dict[str, Any] = {}
     for name, value in metrics.items():

@@ -6,7 +6,8 @@ Layout of a results folder ``DIR``::
     DIR/runs/<key>.parquet       one row: the run's identity and metrics (the "finished" mark)
     DIR/traces/<key>.parquet     the per-instant trace, when the suite asks for traces
 
-``<key>`` is the hash of the run's identity (:attr:`benchmarks.suite.RunSpec.key`).
+``<key>`` is the hash of the run's identity
+(:attr:`formation_bench.benchmarks.experiments.suite.RunSpec.key`).
 Every file is written to a temporary name and renamed, and a trace is written
 before its run row, so a run row exists only for a finished run. On resume each
 row is read back whole; a file that cannot be read, holds the wrong run, was
@@ -40,7 +41,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from benchmarks.outputs import atomic_write_bytes
+from formation_bench.benchmarks.outputs import atomic_write_bytes
 
 MANIFEST = "manifest.json"
 RUNS = "runs"

@@ -2,7 +2,7 @@
 
 The instants are the paper scenario's real per-UAV problems (all three UAVs at
 instants 5, 60 and 150 of a run without trigger, modified BSO, seed 1), recorded
-once per session by :func:`benchmarks.instants.record_instants`, so every
+once per session by :func:`formation_bench.benchmarks.instants.record_instants`, so every
 optimiser solves exactly the same problems with the same warm starts. Each
 benchmark round is one solve, cycling through the 9 problems with a fresh,
 fixed generator per round.
@@ -11,7 +11,7 @@ Two budgets: the optimiser's own default (as the ``run``/``paper`` runs use it)
 and the equal evaluation budget of the ``comparison`` suite. ``extra_info``
 records the evaluations used.
 
-    taskset -c 0,1 pytest benchmarks/timing --benchmark-json=timing.json
+    taskset -c 0,1 pytest benchmarks/perf/timing --benchmark-json=timing.json
 """
 
 from __future__ import annotations
@@ -21,10 +21,10 @@ import itertools
 import numpy as np
 import pytest
 
-from benchmarks.instants import record_instants
-from benchmarks.runner import warm_up_kernels
-from mpc.scenario import get_scenario
-from optimizers import OPTIMIZERS, Budget, get_optimizer
+from formation_bench.benchmarks.instants import record_instants
+from formation_bench.benchmarks.runner import warm_up_kernels
+from formation_bench.mpc.scenario import get_scenario
+from formation_bench.optimizers import OPTIMIZERS, Budget, get_optimizer
 
 INSTANT_STEPS = [5, 60, 150]
 EQUAL_BUDGET = Budget(max_evaluations=1200)

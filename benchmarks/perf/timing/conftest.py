@@ -1,6 +1,6 @@
 """Pin the timing suite to two cores and one thread per native pool, before anything runs.
 
-``pytest benchmarks/timing`` is not part of the default test run (``testpaths``
+``pytest benchmarks/perf/timing`` is not part of the default test run (``testpaths``
 is ``tests``). The command and how to compare two saved runs are in
 ``docs/benchmarks.md``.
 """

@@ -2,7 +2,7 @@
 
 A suite names optimisers (with config overrides), scenarios (with overrides),
 trigger settings, seeds and budgets; every combination is one closed-loop run.
-Shipped suites live in ``benchmarks/suites/NAME.toml``; any other TOML file can
+Shipped suites live in ``benchmarks/experiments/suites/NAME.toml``; any other TOML file can
 be given by path. The format is documented in ``docs/benchmarks.md``.
 
 Every error names the file, the line and the allowed values, e.g.::
@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from mpc.scenario import SCENARIOS, Scenario, get_scenario
-from optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
+from formation_bench.mpc.scenario import SCENARIOS, Scenario, get_scenario
+from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
 
 SUITES_DIR = Path(__file__).parent / "suites"
 """Where the shipped suites live."""
@@ -317,7 +317,7 @@ class Suite:
 
 
 def shipped_suites() -> list[str]:
-    """Names of the suites in ``benchmarks/suites/``."""
+    """Names of the suites in ``benchmarks/experiments/suites/``."""
     return sorted(p.stem for p in SUITES_DIR.glob("*.toml"))
 
 

@@ -1,6 +1,6 @@
 """Scaling of the sweep machinery: speed-up with 2 workers, and its per-run overhead.
 
-Run ``python -m benchmarks.scaling`` (``--json FILE`` keeps the figures). It
+Run ``python -m formation_bench.benchmarks.perf.scaling`` (``--json FILE`` keeps the figures). It
 sweeps a fixed suite (the paper scenario with the modified BSO at its default
 budget, trigger off so that every run does the same work; 8 seeds by default)
 into fresh folders, once with 1 worker and once with 2, after warming the
@@ -28,9 +28,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.store import load_results, machine_info
-from benchmarks.suite import parse_suite
-from benchmarks.sweep import run_locally, run_sweep
+from formation_bench.benchmarks.experiments.store import load_results, machine_info
+from formation_bench.benchmarks.experiments.suite import parse_suite
+from formation_bench.benchmarks.experiments.sweep import run_locally, run_sweep
 
 SUITE = """\
 name = "scaling"
@@ -175,7 +175,8 @@ def format_figures(f: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.scaling", description=__doc__.splitlines()[0]
+        prog="python -m formation_bench.benchmarks.perf.scaling",
+        description=__doc__.splitlines()[0],
     )
     parser.add_argument("--runs", type=int, default=8, help="runs in the fixed sweep (default 8)")
     parser.add_argument(

@@ -19,7 +19,7 @@ in the deviation ``du = u - u0``:
     90: on the paper scenario OSQP needs a third of the iterations and the
     95th percentile of the solve time is 5-16 times lower (docs/gradient-baselines.md).
 
-Both are built from the CasADi expression of :mod:`optimizers.casadi_model`
+Both are built from the CasADi expression of :mod:`formation_bench.mpc.solvers.casadi_model`
 (one call returns every matrix value and vector of an instant; the function is
 built once per problem shape). Each UAV's QP is set up in OSQP once and then
 updated in place at every following instant with ``OSQP.update`` (vectors, and
@@ -52,13 +52,18 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-import casadi as ca
 import numpy as np
-import osqp
-import scipy.sparse as sp
 
-from mpc.model import rollout as numeric_rollout
-from optimizers.base import (
+from formation_bench.mpc.model import rollout as numeric_rollout
+from formation_bench.mpc.solvers.gradient_common import (
+    SolverCacheMixin,
+    fallback_result,
+    require_local_problem,
+    shift_of,
+    warm_start_of,
+)
+from formation_bench.mpc.solvers.problem_shape import STATE_DIM, ProblemShape, pack_parameters
+from formation_bench.optimizers.base import (
     BatchObjective,
     Bounds,
     Budget,
@@ -69,26 +74,13 @@ from optimizers.base import (
     check_real,
     coerce_enum,
 )
-from optimizers.casadi_model import (
-    STATE_DIM,
-    ProblemShape,
-    block_controls,
-    horizon_cost,
-    pack_parameters,
-    period_step,
-    rollout,
-    symbolic_parameters,
-)
-from optimizers.gradient_common import (
-    SolverCacheMixin,
-    fallback_result,
-    require_local_problem,
-    shift_of,
-    warm_start_of,
-)
 
-if TYPE_CHECKING:  # mpc.problem imports optimizers.base: no run-time import here
-    from mpc.problem import LocalProblem
+if TYPE_CHECKING:  # casadi, osqp and scipy.sparse are imported when a solver is first built
+    import casadi as ca
+    import osqp
+    import scipy.sparse as sp
+
+    from formation_bench.mpc.problem import LocalProblem
 
 LINE_SEARCH_STEPS = np.array([1.0, 0.5, 0.25])
 """Step lengths tried along each QP direction (one batch evaluation of the true cost)."""
@@ -131,6 +123,8 @@ class LtvFunctions:
 
 def _csc(matrix: ca.SX, values: np.ndarray) -> sp.csc_matrix:
     """A SciPy CSC matrix with ``matrix``'s CasADi pattern (CSC too) and ``values``."""
+    import scipy.sparse as sp
+
     sparsity = matrix.sparsity()
     return sp.csc_matrix(
         (
@@ -144,6 +138,8 @@ def _csc(matrix: ca.SX, values: np.ndarray) -> sp.csc_matrix:
 
 def _upper_dense(matrix: ca.SX) -> tuple[ca.SX, np.ndarray, np.ndarray]:
     """Every upper-triangle entry of a square ``matrix`` in CSC order, zeros included."""
+    import casadi as ca
+
     n = matrix.size1()
     entries, rows, colind = [], [], [0]
     for j in range(n):
@@ -156,6 +152,17 @@ def _upper_dense(matrix: ca.SX) -> tuple[ca.SX, np.ndarray, np.ndarray]:
 
 def build_functions(shape: ProblemShape, form: QPForm) -> LtvFunctions:
     """Linearisation function and QP patterns of ``shape`` in ``form``."""
+    import casadi as ca
+    import scipy.sparse as sp
+
+    from formation_bench.mpc.solvers.casadi_model import (
+        block_controls,
+        horizon_cost,
+        period_step,
+        rollout,
+        symbolic_parameters,
+    )
+
     start = time.perf_counter()
     params = symbolic_parameters(shape)
     u = ca.SX.sym("u", shape.dim)
@@ -289,6 +296,8 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
         lower: np.ndarray,
         upper: np.ndarray,
     ) -> _UavSolver:
+        import osqp
+
         start = time.perf_counter()
         P, A = functions.P.copy(), functions.A.copy()
         if functions.form == QPForm.SPARSE:
@@ -307,6 +316,8 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
         budget: Budget | None = None,
         x0: np.ndarray | None = None,
     ) -> OptimizeResult:
+        import osqp
+
         problem = require_local_problem(type(self).__name__, objective)
         budget = self.default_budget if budget is None else budget
         rounds = (

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmarks import stats
-from benchmarks.store import load_results
+from formation_bench.benchmarks.analysis import stats
+from formation_bench.benchmarks.experiments.store import load_results
 
 FACTORS = ("optimizer", "trigger", "budget", "scenario")
 """Factors a report can compare, in the order the default choice tries them."""
@@ -137,7 +137,8 @@ class Report:
 def analyse(
     results: pd.DataFrame, *, baseline: str | None = None, compare: str | None = None
 ) -> Report:
-    """Statistics of a results table (as :func:`benchmarks.store.load_results` returns it)."""
+    """Statistics of a results table (as
+    :func:`formation_bench.benchmarks.experiments.store.load_results` returns it)."""
     frame = prepare(results)
     factor = choose_factor(frame, compare)
     base = choose_baseline(frame, factor, baseline)
@@ -346,7 +347,7 @@ def write_figures(report: Report, results: pd.DataFrame, folder: Path) -> list[P
 def _write_figures(report: Report, results: pd.DataFrame, folder: Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
-    from benchmarks.result_figures import (
+    from formation_bench.benchmarks.analysis.figures import (
         distribution_figure,
         solve_time_ecdf_figure,
         trigger_conditions_figure,

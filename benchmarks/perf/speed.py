@@ -1,6 +1,6 @@
 """Speed benchmark of the hot paths on the paper problem.
 
-Run ``python -m benchmarks.speed`` (add ``--json FILE`` to keep the figures).
+Run ``python -m formation_bench.benchmarks.perf.speed`` (add ``--json FILE`` to keep the figures).
 It records real per-UAV problems of the paper scenario, then measures:
 
 - the batch objective for a population of 30: compiled kernel versus the plain
@@ -28,12 +28,12 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.instants import RecordedInstant, record_instants
-from benchmarks.runner import run_closed_loop, warm_up_kernels
-from mpc.scenario import get_scenario
-from optimizers import EvaluationCounter, ModifiedBSO, get_optimizer
-from optimizers.bso_ops import cluster_population
-from optimizers.clustering import lloyd_kmeans, sklearn_kmeans
+from formation_bench.benchmarks.instants import RecordedInstant, record_instants
+from formation_bench.benchmarks.runner import run_closed_loop, warm_up_kernels
+from formation_bench.mpc.scenario import get_scenario
+from formation_bench.optimizers import EvaluationCounter, ModifiedBSO, get_optimizer
+from formation_bench.optimizers.bso_ops import cluster_population
+from formation_bench.optimizers.clustering import lloyd_kmeans, sklearn_kmeans
 
 
 def _median_seconds(func, number: int, repeat: int) -> float:
@@ -178,7 +178,7 @@ def format_results(results: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.speed", description=__doc__.splitlines()[0]
+        prog="python -m formation_bench.benchmarks.perf.speed", description=__doc__.splitlines()[0]
     )
     parser.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     parser.add_argument("--quick", action="store_true", help="few repeats, no closed-loop run")

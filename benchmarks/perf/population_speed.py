@@ -1,8 +1,8 @@
 """Speed of every population optimiser on the paper problem, and against mealpy's one-point BSO.
 
-Run ``python -m benchmarks.population_speed`` (needs ``mealpy`` from the
+Run ``python -m formation_bench.benchmarks.perf.population_speed`` (needs ``mealpy`` from the
 ``bench`` extra for the last column). It records real per-UAV problems of the
-paper scenario (:func:`benchmarks.instants.record_instants`), then, for every
+paper scenario (:func:`formation_bench.benchmarks.instants.record_instants`), then, for every
 registered population optimiser at its default budget with the loop's warm
 start:
 
@@ -32,11 +32,11 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.bbob import mealpy_original_bso, population_optimizers
-from benchmarks.instants import RecordedInstant, record_instants
-from benchmarks.runner import warm_up_kernels
-from mpc.scenario import get_scenario
-from optimizers import get_optimizer
+from formation_bench.benchmarks.instants import RecordedInstant, record_instants
+from formation_bench.benchmarks.perf.bbob import mealpy_original_bso, population_optimizers
+from formation_bench.benchmarks.runner import warm_up_kernels
+from formation_bench.mpc.scenario import get_scenario
+from formation_bench.optimizers import get_optimizer
 
 
 def paper_instants(steps: Sequence[int] = (5, 60, 150)) -> list[RecordedInstant]:
@@ -67,7 +67,7 @@ def time_optimizer(name: str, instants: list[RecordedInstant], repeats: int) -> 
     advance while other processes hold the cores, so the split is stable on a
     shared machine; the objective's part counts only the time inside the
     problem itself. ``counter_outside_share`` is the wall-clock split of
-    ``benchmarks.speed`` instead: the evaluation counter's objective time
+    ``formation_bench.benchmarks.perf.speed`` instead: the evaluation counter's objective time
     (which includes the call into the objective) over the solve's wall time.
     Every repeat of a problem uses the same seed and does the same work; per
     problem the fastest repeat counts, then the median over the problems.
@@ -186,7 +186,8 @@ def format_results(results: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.population_speed", description=__doc__.splitlines()[0]
+        prog="python -m formation_bench.benchmarks.perf.population_speed",
+        description=__doc__.splitlines()[0],
     )
     parser.add_argument("--repeats", type=int, default=5, help="solves per problem (5)")
     parser.add_argument("--optimizers", help="comma-separated names (default: all population)")

@@ -2,7 +2,7 @@
 
 The decision vector and bounds are those the population optimisers search
 (``[a_1, omega_1, ..., a_B, omega_B]`` in the control box). The problem is
-written once in CasADi symbols (:mod:`optimizers.casadi_model`) with the
+written once in CasADi symbols (:mod:`formation_bench.mpc.solvers.casadi_model`) with the
 instant's numbers (state, neighbour estimates, desired offsets, reference) as
 parameters, handed to ``nlpsol`` once per problem shape, and re-used at every
 instant and by every UAV. Two transcriptions:
@@ -18,7 +18,7 @@ Warm start: the primal point is the shifted previous plan the loop passes as
 ``warm_start_duals`` the multipliers of this UAV's previous solve, shifted by
 the periods elapsed, start IPOPT's dual iterates (``warm_start_init_point``);
 they are used only when ``x0`` is exactly that solve's plan shifted (see
-:func:`optimizers.gradient_common.shift_of`), so a run never depends on what the
+:func:`formation_bench.mpc.solvers.gradient_common.shift_of`), so a run never depends on what the
 optimiser solved before it.
 
 A solve that does not end in ``Solve_Succeeded`` or ``Solved_To_Acceptable_Level``
@@ -35,13 +35,20 @@ from __future__ import annotations
 import enum
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import casadi as ca
 import numpy as np
 
-from mpc.model import rollout as numeric_rollout
-from optimizers.base import (
+from formation_bench.mpc.model import rollout as numeric_rollout
+from formation_bench.mpc.solvers.gradient_common import (
+    SolverCacheMixin,
+    fallback_result,
+    require_local_problem,
+    shift_of,
+    warm_start_of,
+)
+from formation_bench.mpc.solvers.problem_shape import STATE_DIM, ProblemShape, pack_parameters
+from formation_bench.optimizers.base import (
     BatchObjective,
     Bounds,
     Budget,
@@ -52,23 +59,9 @@ from optimizers.base import (
     check_real,
     coerce_enum,
 )
-from optimizers.casadi_model import (
-    STATE_DIM,
-    ProblemShape,
-    block_controls,
-    horizon_cost,
-    pack_parameters,
-    period_step,
-    rollout,
-    symbolic_parameters,
-)
-from optimizers.gradient_common import (
-    SolverCacheMixin,
-    fallback_result,
-    require_local_problem,
-    shift_of,
-    warm_start_of,
-)
+
+if TYPE_CHECKING:
+    import casadi as ca
 
 SUCCESS_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 EVALUATION_COUNTERS = (
@@ -202,6 +195,16 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
         key = ("solver", shape, max_iter, dual_start)
         solver = self._solver_cache.get(key)
         if solver is None:
+            import casadi as ca  # imported when a solver is first built: a slow import
+
+            from formation_bench.mpc.solvers.casadi_model import (
+                block_controls,
+                horizon_cost,
+                period_step,
+                rollout,
+                symbolic_parameters,
+            )
+
             start = time.perf_counter()
             params = symbolic_parameters(shape)
             decision = ca.SX.sym("u", shape.dim)

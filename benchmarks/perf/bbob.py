@@ -1,6 +1,6 @@
 """External validation: the population optimisers on BBOB functions, and mealpy's OriginalBSO.
 
-Run ``python -m benchmarks.bbob`` (needs the ``bench`` extra: ``ioh`` and
+Run ``python -m formation_bench.benchmarks.perf.bbob`` (needs the ``bench`` extra: ``ioh`` and
 ``mealpy``). Every registered population optimiser, and mealpy's
 ``OriginalBSO`` (a published implementation of Shi's BSO, evaluating one
 point at a time), minimises a handful of BBOB functions from ``ioh`` in 10
@@ -24,7 +24,13 @@ from typing import Any
 
 import numpy as np
 
-from optimizers import Bounds, Budget, PopulationOptimizer, get_optimizer, optimizer_names
+from formation_bench.optimizers import (
+    Bounds,
+    Budget,
+    PopulationOptimizer,
+    get_optimizer,
+    optimizer_names,
+)
 
 FUNCTIONS: dict[int, str] = {
     1: "f1 sphere",
@@ -170,7 +176,7 @@ def median_table(records: list[dict[str, Any]]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.bbob", description=__doc__.splitlines()[0]
+        prog="python -m formation_bench.benchmarks.perf.bbob", description=__doc__.splitlines()[0]
     )
     parser.add_argument("--evaluations", type=int, default=1300, help="budget per run (1300)")
     parser.add_argument("--instances", type=int, default=5, help="BBOB instances 1..N (5)")

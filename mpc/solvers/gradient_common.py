@@ -4,7 +4,7 @@ They differ from the population optimisers in three ways that this module
 handles once:
 
 - they need the problem's parameters, not only a batch objective, so they
-  accept only a :class:`~mpc.problem.LocalProblem` (:func:`require_local_problem`);
+  accept only a :class:`~formation_bench.mpc.problem.LocalProblem` (:func:`require_local_problem`);
 - they build a solver once per problem shape (and UAV) and keep it between
   calls in a private cache that is dropped when the optimiser is pickled
   (:class:`SolverCacheMixin`), so the sweep machinery can send them to worker
@@ -20,15 +20,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from optimizers.base import BatchObjective, Bounds, OptimizeResult, check_x0
+from formation_bench.optimizers.base import BatchObjective, Bounds, OptimizeResult, check_x0
 
 if TYPE_CHECKING:  # mpc.problem imports optimizers.base: imported when first needed
-    from mpc.problem import LocalProblem
+    from formation_bench.mpc.problem import LocalProblem
 
 
 def require_local_problem(owner: str, objective: BatchObjective) -> LocalProblem:
     """``objective`` if it is a :class:`LocalProblem`, else a TypeError saying why."""
-    from mpc.problem import LocalProblem
+    from formation_bench.mpc.problem import LocalProblem
 
     if not isinstance(objective, LocalProblem):
         raise TypeError(
@@ -104,7 +104,7 @@ def shift_of(
     """How many periods ago ``previous_decision`` was the plan that ``x0`` shifts, or None.
 
     The closed loop warm-starts from the previous plan shifted by the periods
-    elapsed since it was computed (:func:`mpc.problem.shifted_controls`). When
+    elapsed since it was computed (:func:`formation_bench.mpc.problem.shifted_controls`). When
     the current state lies on that plan's predicted trajectory ``s`` periods
     in, and shifting the plan by ``s`` gives ``x0``, the plan is this UAV's
     previous solve in the same run, and quantities kept from that solve (dual

@@ -12,17 +12,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
-import seaborn as sns
 
-from benchmarks.instants import record_instants
-from benchmarks.paper import PAPER_FIGURES
-from benchmarks.result_figures import METRIC_LABELS
-from benchmarks.store import load_results, load_traces
-from mpc.scenario import get_scenario
-from optimizers import Budget, get_optimizer
+from formation_bench.benchmarks.analysis.figures import METRIC_LABELS
+from formation_bench.benchmarks.analysis.paper import PAPER_FIGURES
+from formation_bench.benchmarks.experiments.store import load_results, load_traces
+from formation_bench.benchmarks.instants import record_instants
+from formation_bench.mpc.scenario import get_scenario
+from formation_bench.optimizers import Budget, get_optimizer
 
 
 def find_stores(results_dir: Path | str) -> dict[str, Path]:
@@ -50,7 +48,8 @@ def suite_runs(results: pd.DataFrame, suite: str) -> pd.DataFrame:
 
 
 def nested_metrics(row: pd.Series) -> dict[str, Any]:
-    """A stored (flat) row back in the ``metrics.json`` form that :mod:`benchmarks.paper` reads."""
+    """A stored (flat) row back in the ``metrics.json`` form that
+    :mod:`formation_bench.benchmarks.analysis.paper` reads."""
     pairs = {
         c.removeprefix("distance_error_max_m_"): row[c]
         for c in row.index
@@ -226,43 +225,6 @@ def convergence_curves(
     return pd.DataFrame(rows)
 
 
-def convergence_figure(curves: pd.DataFrame) -> plt.Figure:
-    """Median (over instants and seeds) best cost relative to the warm start, per optimiser."""
-    sns.set_theme(style="whitegrid")
-    # Each run's best-so-far is a step function of the evaluations: read it on one grid,
-    # so that the medians across runs are taken at equal evaluation counts.
-    points = np.arange(0, curves["evaluations"].max() + 1, 25)
-    pieces = []
-    for (optimizer, _, _), run in curves.groupby(["optimizer", "instant", "seed"]):
-        index = np.searchsorted(run["evaluations"].to_numpy(), points, side="right") - 1
-        known = index >= 0
-        pieces.append(
-            pd.DataFrame(
-                {
-                    "optimizer": optimizer,
-                    "evaluations": points[known],
-                    "relative_cost": run["relative_cost"].to_numpy()[index[known]],
-                }
-            )
-        )
-    grid = pd.concat(pieces, ignore_index=True)
-    fig, ax = plt.subplots(figsize=(8, 4.5), constrained_layout=True)
-    sns.lineplot(
-        data=grid,
-        x="evaluations",
-        y="relative_cost",
-        hue="optimizer",
-        estimator="median",
-        errorbar=("pi", 50),
-        ax=ax,
-    )
-    ax.set_yscale("log")
-    ax.set_xlabel("objective evaluations")
-    ax.set_ylabel("best cost / warm-start cost")
-    ax.set_title("Convergence on recorded paper instants (median, band: 25-75 %)", fontsize=10)
-    return fig
-
-
 def convergence_sentence(curves: pd.DataFrame) -> str:
     """Which optimiser ends lowest, and how far below the warm start."""
     final = curves.sort_values("evaluations").groupby(["optimizer", "instant", "seed"]).last()
@@ -288,30 +250,6 @@ def trigger_tradeoff(runs: pd.DataFrame) -> pd.DataFrame:
     )
     frame.loc[~frame["trigger"].astype(bool), "threshold_m"] = 0.0
     return frame
-
-
-def trigger_tradeoff_figure(frame: pd.DataFrame) -> plt.Figure:
-    """Solves saved against tracking and formation error as the thresholds vary."""
-    sns.set_theme(style="whitegrid")
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharex=True, constrained_layout=True)
-    for ax, metric in zip(axes, ("tracking_error_max_m", "distance_error_max_m_max"), strict=True):
-        sns.scatterplot(
-            data=frame,
-            x="solves_saved",
-            y=metric,
-            hue="threshold_m",
-            palette="viridis",
-            ax=ax,
-            s=30,
-            alpha=0.8,
-        )
-        means = frame.groupby("threshold_m")[["solves_saved", metric]].median()
-        ax.plot(means["solves_saved"], means[metric], "k--", lw=1, label="medians")
-        ax.set_xlabel("fraction of solves saved by the trigger")
-        ax.set_ylabel(METRIC_LABELS[metric])
-        ax.legend(title="eps_p = eps_O (m); 0 = no trigger", fontsize=8, title_fontsize=8)
-    fig.suptitle("Trigger trade-off: solves saved against accuracy", fontsize=11)
-    return fig
 
 
 def trigger_sentence(frame: pd.DataFrame) -> str:

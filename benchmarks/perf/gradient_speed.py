@@ -1,6 +1,6 @@
 """Time per solve of the derivative-based baselines beside the modified BSO, on the paper problem.
 
-Run ``python -m benchmarks.gradient_speed`` (``--json FILE`` keeps the figures,
+Run ``python -m formation_bench.benchmarks.perf.gradient_speed`` (``--json FILE`` keeps the figures,
 ``--quick`` runs a short scenario for a smoke test). In one process it measures,
 for ``ipopt``, ``ltv-osqp`` and ``modified-bso`` (or ``--optimizers``):
 
@@ -33,12 +33,12 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.instants import ObservedOptimizer, record_instants
-from benchmarks.runner import warm_up_kernels
-from mpc.loop import simulate
-from mpc.metrics import compute_metrics
-from mpc.scenario import Scenario, get_scenario
-from optimizers import get_optimizer
+from formation_bench.benchmarks.instants import ObservedOptimizer, record_instants
+from formation_bench.benchmarks.runner import warm_up_kernels
+from formation_bench.mpc.loop import simulate
+from formation_bench.mpc.metrics import compute_metrics
+from formation_bench.mpc.scenario import Scenario, get_scenario
+from formation_bench.optimizers import get_optimizer
 
 DEFAULT_OPTIMIZERS = ("ipopt", "ltv-osqp", "modified-bso")
 TARGETS_MS = {"ipopt": 3.0, "ltv-osqp": 1.0}
@@ -174,7 +174,8 @@ def format_results(results: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.gradient_speed", description=__doc__.splitlines()[0]
+        prog="python -m formation_bench.benchmarks.perf.gradient_speed",
+        description=__doc__.splitlines()[0],
     )
     parser.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     parser.add_argument("--repeats", type=int, default=2, help="interleaved repeats (default 2)")

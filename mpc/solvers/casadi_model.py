@@ -1,16 +1,17 @@
 """The per-UAV problem of eq. (14) in CasADi symbols: one expression for every derivative path.
 
-The gradient baselines (:mod:`optimizers.ipopt_solver`, :mod:`optimizers.ltv_osqp`)
-need the problem that :class:`~mpc.problem.LocalProblem` evaluates numerically,
+The gradient baselines (:mod:`formation_bench.mpc.solvers.ipopt_solver`,
+:mod:`formation_bench.mpc.solvers.ltv_osqp`)
+need the problem that :class:`~formation_bench.mpc.problem.LocalProblem` evaluates numerically,
 written symbolically so that CasADi can differentiate it. This module writes it
 once:
 
-- :func:`simpson_substep` is the RK4 step of :mod:`mpc.model` (zero-order hold,
+- :func:`simpson_substep` is the RK4 step of :mod:`formation_bench.mpc.model` (zero-order hold,
   in its Simpson form: three sine/cosine pairs per sub-step);
 - :func:`stage_cost` is the integrand of eq. (14) **as printed** (the centre is
   ``(p_i + sum_j p_hat_j) / N``), so it is a third, independent writing of the
-  cost beside the compiled :func:`mpc.cost.batch_cost` and the plain
-  :func:`mpc.cost.reference_cost`; a test checks all three agree;
+  cost beside the compiled :func:`formation_bench.mpc.cost.batch_cost` and the plain
+  :func:`formation_bench.mpc.cost.reference_cost`; a test checks all three agree;
 - :func:`horizon_cost` sums it with the same right-endpoint rectangle rule.
 
 The problem's numbers enter as one parameter vector (:func:`pack_parameters`):
@@ -27,68 +28,15 @@ from typing import TYPE_CHECKING
 import casadi as ca
 import numpy as np
 
+from formation_bench.mpc.solvers.problem_shape import (
+    CONTROL_DIM,
+    STATE_DIM,
+    ProblemShape,
+    pack_parameters,
+)
+
 if TYPE_CHECKING:  # mpc.problem imports optimizers.base: no run-time import here
-    from mpc.problem import LocalProblem
-
-STATE_DIM = 4
-CONTROL_DIM = 2
-
-
-@dataclass(frozen=True)
-class ProblemShape:
-    """Everything a symbolic problem depends on besides the parameter values.
-
-    Two :class:`~mpc.problem.LocalProblem` with equal shapes share their
-    CasADi functions and solvers; it is the key of the optimisers' caches.
-    """
-
-    horizon_steps: int
-    n_blocks: int
-    block_of_step: tuple[int, ...]
-    n_neighbours: int
-    n_uav: int
-    period_s: float
-    rk4_substeps: int
-    w_dst: float
-    w_trj: float
-
-    @classmethod
-    def of(cls, problem: LocalProblem) -> ProblemShape:
-        """The shape of ``problem``."""
-        scenario = problem.scenario
-        return cls(
-            horizon_steps=int(scenario.horizon_steps),
-            n_blocks=int(scenario.n_blocks),
-            block_of_step=tuple(int(b) for b in problem.block_of_step),
-            n_neighbours=int(problem.neighbour_positions.shape[0]),
-            n_uav=int(scenario.n_uav),
-            period_s=float(scenario.period_s),
-            rk4_substeps=int(scenario.rk4_substeps),
-            w_dst=float(scenario.w_dst),
-            w_trj=float(scenario.w_trj),
-        )
-
-    @property
-    def dim(self) -> int:
-        """Length of the decision vector ``[a_1, omega_1, ..., a_B, omega_B]``."""
-        return CONTROL_DIM * self.n_blocks
-
-    @property
-    def n_parameters(self) -> int:
-        """Length of the parameter vector of :func:`pack_parameters`."""
-        return STATE_DIM + 2 * 2 * self.n_neighbours * self.horizon_steps + 2 * self.horizon_steps
-
-
-def pack_parameters(problem: LocalProblem) -> np.ndarray:
-    """The parameter vector of ``problem``: state, estimates, desired offsets, reference."""
-    return np.concatenate(
-        (
-            np.asarray(problem.state, dtype=np.float64).reshape(-1),
-            np.asarray(problem.neighbour_positions, dtype=np.float64).reshape(-1),
-            np.asarray(problem.desired_relative, dtype=np.float64).reshape(-1),
-            np.asarray(problem.reference, dtype=np.float64).reshape(-1),
-        )
-    )
+    from formation_bench.mpc.problem import LocalProblem
 
 
 @dataclass(frozen=True)
@@ -133,7 +81,7 @@ def symbolic_parameters(shape: ProblemShape) -> SymbolicParameters:
 def simpson_substep(z: ca.SX, u: ca.SX, h: float) -> ca.SX:
     """One RK4 sub-step of length ``h`` under the held control ``u = [a, omega]``.
 
-    The same arithmetic as :func:`mpc.model.rk4_substep`: under a held control
+    The same arithmetic as :func:`formation_bench.mpc.model.rk4_substep`: under a held control
     heading and speed are affine in time, RK4's middle stages coincide and the
     step is Simpson's rule on them.
     """

@@ -1,6 +1,6 @@
 """The LTV-MPC QP of ``ltv-osqp`` written readably in cvxpy: the reference it is tested against.
 
-:mod:`optimizers.ltv_osqp` builds its QP as raw OSQP data (CSC nonzeros of one
+:mod:`formation_bench.mpc.solvers.ltv_osqp` builds its QP as raw OSQP data (CSC nonzeros of one
 big CasADi Jacobian, updated in place). This module writes the same QP the
 way one would on paper, with cvxpy Parameters so that it is compiled once and
 re-solved per instant (DPP)::
@@ -13,7 +13,7 @@ re-solved per instant (DPP)::
 
 where ``p_bar`` is the trajectory predicted along the nominal controls ``u0``
 and ``A_k``, ``B_k`` are the per-period Jacobians of the RK4 step, taken one
-period at a time from :func:`optimizers.casadi_model.period_step`. It is not
+period at a time from :func:`formation_bench.mpc.solvers.casadi_model.period_step`. It is not
 used in the closed loop (cvxpy's per-solve overhead is milliseconds).
 """
 
@@ -26,11 +26,16 @@ import casadi as ca
 import cvxpy as cp
 import numpy as np
 
-from mpc.model import rollout as numeric_rollout
-from optimizers.casadi_model import CONTROL_DIM, STATE_DIM, ProblemShape, period_step
+from formation_bench.mpc.model import rollout as numeric_rollout
+from formation_bench.mpc.solvers.casadi_model import (
+    CONTROL_DIM,
+    STATE_DIM,
+    ProblemShape,
+    period_step,
+)
 
 if TYPE_CHECKING:
-    from mpc.problem import LocalProblem
+    from formation_bench.mpc.problem import LocalProblem
 
 
 def step_jacobians(

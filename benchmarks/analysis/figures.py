@@ -1,0 +1,393 @@
+"""Every figure formation-bench draws, in one place.
+
+Two kinds of input:
+
+- the long trace of ONE run (see :func:`formation_bench.benchmarks.outputs.trace_frame`):
+  figures like the paper's Figs. 3-7 (:func:`trajectory_figure`, :func:`states_figure`,
+  :func:`trigger_figure`);
+- a results table, one row per run (as
+  :func:`~formation_bench.benchmarks.experiments.store.load_results` returns it):
+  distributions, solve-time ECDFs, solve counts, trigger conditions, convergence
+  curves and the trigger trade-off.
+
+Each function returns a Matplotlib figure; the caller saves or shows it.
+"""
+
+from __future__ import annotations
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+import seaborn as sns
+
+from formation_bench.mpc.metrics import pair_names
+
+
+def _wide(frame: pd.DataFrame, column: str) -> pd.DataFrame:
+    return frame.pivot(index="time_s", columns="uav", values=column)
+
+
+def _title(frame: pd.DataFrame, what: str) -> str:
+    first = frame.iloc[0]
+    trigger = "with trigger" if first["trigger"] else "without trigger"
+    return f"{what}: {first['optimizer']}, {first['scenario']}, {trigger}, seed {first['seed']}"
+
+
+def trajectory_figure(frame: pd.DataFrame, snapshot_every_s: float = 8.0) -> plt.Figure:
+    """Figs. 3 and 5: UAV paths, the reference path, and the formation at intervals."""
+    sns.set_theme(style="whitegrid")
+    fig, ax = plt.subplots(figsize=(8, 6), constrained_layout=True)
+    palette = sns.color_palette("deep", frame["uav"].nunique())
+    reference = frame[frame["uav"] == frame["uav"].min()]
+    ax.plot(reference["ref_x_m"], reference["ref_y_m"], "k--", lw=1.2, label="reference centre")
+    for colour, (uav, rows) in zip(palette, frame.groupby("uav"), strict=True):
+        ax.plot(rows["x_m"], rows["y_m"], color=colour, lw=1.5, label=f"UAV {uav}")
+        ax.plot(rows["x_m"].iloc[0], rows["y_m"].iloc[0], "o", color=colour, ms=6)
+    x, y = _wide(frame, "x_m"), _wide(frame, "y_m")
+    times = x.index.to_numpy()
+    for t in np.arange(0.0, times[-1] + 1e-9, snapshot_every_s):
+        row = int(np.argmin(np.abs(times - t)))
+        px, py = x.iloc[row].to_numpy(), y.iloc[row].to_numpy()
+        ax.fill(px, py, facecolor="none", edgecolor="0.4", lw=0.8)
+        centre_x, centre_y = px.mean(), py.mean()
+        ax.plot(centre_x, centre_y, "x", color="0.3", ms=5)
+    ax.plot([], [], color="0.4", lw=0.8, label=f"formation every {snapshot_every_s:g} s")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend(loc="best", fontsize=9)
+    ax.set_title(_title(frame, "Trajectories"), fontsize=10)
+    return fig
+
+
+def states_figure(
+    frame: pd.DataFrame, desired_distances: dict[str, float], settle_time_s: float
+) -> plt.Figure:
+    """Figs. 4 and 6: states, controls, pairwise distances and tracking error over time."""
+    sns.set_theme(style="whitegrid")
+    fig, axes = plt.subplots(3, 2, figsize=(11, 9), sharex=True, constrained_layout=True)
+    panels = [
+        ("speed_m_s", "speed v (m/s)", 1.0),
+        ("heading_rad", "heading θ (deg)", 180.0 / np.pi),
+        ("accel_m_s2", "acceleration a (m/s²)", 1.0),
+        ("turn_rate_rad_s", "turn rate ω (rad/s)", 1.0),
+    ]
+    for ax, (column, label, scale) in zip(axes.flat[:4], panels, strict=True):
+        wide = _wide(frame, column) * scale
+        for uav in wide.columns:
+            drawstyle = "steps-post" if column in ("accel_m_s2", "turn_rate_rad_s") else "default"
+            ax.plot(wide.index, wide[uav], lw=1.2, label=f"UAV {uav}", drawstyle=drawstyle)
+        ax.set_ylabel(label)
+    axes[0, 0].legend(fontsize=8)
+    x, y = _wide(frame, "x_m"), _wide(frame, "y_m")
+    ax = axes[2, 0]
+    n_uav = x.shape[1]
+    for name, i, j in pair_names(n_uav):
+        distance = np.hypot(x.iloc[:, i] - x.iloc[:, j], y.iloc[:, i] - y.iloc[:, j])
+        (line,) = ax.plot(x.index, distance, lw=1.2, label=name)
+        ax.axhline(desired_distances[name], color=line.get_color(), ls=":", lw=1)
+    ax.set_ylabel("pairwise distance (m)")
+    ax.set_xlabel("time (s)")
+    ax.legend(fontsize=8, title="dotted: desired", title_fontsize=8)
+    ax = axes[2, 1]
+    reference = frame[frame["uav"] == frame["uav"].min()].set_index("time_s")
+    error = np.hypot(x.mean(axis=1) - reference["ref_x_m"], y.mean(axis=1) - reference["ref_y_m"])
+    ax.plot(error.index, error, color="k", lw=1.2)
+    ax.axvline(settle_time_s, color="0.5", ls="--", lw=1, label=f"settle time {settle_time_s:g} s")
+    ax.set_yscale("log")
+    ax.set_ylabel("centre tracking error (m)")
+    ax.set_xlabel("time (s)")
+    ax.legend(fontsize=8)
+    fig.suptitle(_title(frame, "States and distances"), fontsize=10)
+    return fig
+
+
+def trigger_figure(frame: pd.DataFrame) -> plt.Figure:
+    """Fig. 7: the instants at which each UAV re-solved."""
+    sns.set_theme(style="whitegrid")
+    fig, ax = plt.subplots(figsize=(10, 3.2), constrained_layout=True)
+    uavs = sorted(frame["uav"].unique())
+    n_instants = frame.loc[frame["uav"] == uavs[0], "step"].max()
+    for row, uav in enumerate(uavs):
+        times = frame.loc[(frame["uav"] == uav) & frame["solved"], "time_s"].to_numpy()
+        ax.vlines(times, row + 0.6, row + 1.4, lw=1.2, color=sns.color_palette("deep")[row % 10])
+        ax.text(
+            1.005,
+            row + 1,
+            f"{times.size}/{n_instants}",
+            transform=ax.get_yaxis_transform(),
+            va="center",
+            fontsize=9,
+        )
+    ax.set_yticks(range(1, len(uavs) + 1), [f"UAV {u}" for u in uavs])
+    ax.set_ylim(0.4, len(uavs) + 0.6)
+    ax.set_xlabel("time (s)")
+    ax.set_title(_title(frame, "Solve instants (count / update instants)"), fontsize=10)
+    return fig
+
+
+def save(fig: plt.Figure, path) -> None:
+    """Save as PNG at a legible resolution and free the figure."""
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _settled(frame: pd.DataFrame, settle_time_s: float) -> pd.DataFrame:
+    return frame[frame["time_s"] >= settle_time_s - 1e-9]
+
+
+def trajectory_sentence(frame: pd.DataFrame, settle_time_s: float = 10.0) -> str:
+    """How far the formation centre strays from the reference, before and after settling."""
+    x, y = _wide(frame, "x_m"), _wide(frame, "y_m")
+    reference = frame[frame["uav"] == frame["uav"].min()].set_index("time_s")
+    error = np.hypot(x.mean(axis=1) - reference["ref_x_m"], y.mean(axis=1) - reference["ref_y_m"])
+    settled = error[error.index >= settle_time_s - 1e-9]
+    return (
+        f"the formation centre starts {error.iloc[0]:.1f} m from the reference, strays up to "
+        f"{error.max():.1f} m while the formation forms, and stays within {settled.max():.2f} m "
+        f"of it after {settle_time_s:g} s."
+    )
+
+
+def states_sentence(
+    frame: pd.DataFrame, desired_distances: dict[str, float], settle_time_s: float
+) -> str:
+    """The largest distance error of each pair after settling, and the speed spread at the end."""
+    x, y = _wide(frame, "x_m"), _wide(frame, "y_m")
+    keep = x.index >= settle_time_s - 1e-9
+    errors = []
+    for name, i, j in pair_names(x.shape[1]):
+        distance = np.hypot(x.iloc[:, i] - x.iloc[:, j], y.iloc[:, i] - y.iloc[:, j])
+        errors.append(f"{name} {np.abs(distance[keep] - desired_distances[name]).max():.2f} m")
+    speed = _wide(frame, "speed_m_s").iloc[-1]
+    return (
+        f"after {settle_time_s:g} s the largest distance errors are "
+        + ", ".join(errors)
+        + f"; at the end the speeds differ by {speed.max() - speed.min():.2f} m/s."
+    )
+
+
+def trigger_sentence(frame: pd.DataFrame) -> str:
+    """Solves per UAV and how they thin out after the start-up."""
+    solved = frame[frame["solved"]]
+    steps = int(frame["step"].max())
+    counts = solved.groupby("uav").size().reindex(sorted(frame["uav"].unique()), fill_value=0)
+    half = frame["time_s"].max() / 2
+    early = solved[solved["time_s"] < half].shape[0]
+    late = solved[solved["time_s"] >= half].shape[0]
+    return (
+        "the UAVs solve " + ", ".join(f"{n}" for n in counts) + f" times of {steps} "
+        f"({100 * (1 - counts.mean() / steps):.0f} % saved on average); "
+        f"{early} solves fall in the first half of the run and {late} in the second."
+    )
+
+
+# --- figures of a results table (one row per run) ----------------------------------------
+
+METRIC_LABELS = {
+    "tracking_error_max_m": "tracking error max after settling (m)",
+    "tracking_error_rms_m": "tracking error RMS after settling (m)",
+    "distance_error_max_m_max": "largest distance error after settling (m)",
+    "closed_loop_cost": "closed-loop cost, eq. (11) summed (m² s)",
+    "solves_total": "solves per run, all UAVs",
+    "solve_time_median_s": "median solve time (s)",
+    "nfev_total": "objective evaluations per run",
+}
+"""Axis labels, with units, of the headline metrics."""
+
+LOG_SCALE = frozenset({"closed_loop_cost", "solve_time_median_s", "nfev_total"})
+"""Metrics that may spread over orders of magnitude: a log axis when they do (> 20x)."""
+
+
+def label(metric: str) -> str:
+    """Axis label of a metric (its name when no label is known)."""
+    return METRIC_LABELS.get(metric, metric)
+
+
+def _order(frame: pd.DataFrame, factor: str, by: str | None = None) -> list:
+    if by is not None and by in frame.columns:
+        return list(frame.groupby(factor)[by].median().sort_values().index)
+    return sorted(frame[factor].unique(), key=str)
+
+
+def distribution_figure(
+    frame: pd.DataFrame, metric: str, factor: str = "optimizer", block: str | None = None
+) -> plt.Figure:
+    """Box plot with every run as a point, one box per level of ``factor``, best median first.
+
+    With ``block`` (a column), one panel per value of it.
+    """
+    sns.set_theme(style="whitegrid")
+    order = _order(frame, factor, metric)
+    panels = sorted(frame[block].unique(), key=str) if block else [None]
+    width = max(6.5, 0.6 * len(order) + 3.5)
+    fig, axes = plt.subplots(
+        1, len(panels), figsize=(width * len(panels), 5.4), squeeze=False, constrained_layout=True
+    )
+    for ax, panel in zip(axes[0], panels, strict=True):
+        data = frame if panel is None else frame[frame[block] == panel]
+        sns.boxplot(
+            data=data, x=factor, y=metric, order=order, ax=ax, showfliers=False, color="#b7cde3"
+        )
+        sns.stripplot(
+            data=data, x=factor, y=metric, order=order, ax=ax, color="#1f3b5a", size=3, alpha=0.6
+        )
+        values = data[metric][data[metric] > 0]
+        if metric in LOG_SCALE and len(values) and values.max() > 20 * values.min():
+            ax.set_yscale("log")
+        ax.set_xlabel(factor)
+        ax.set_ylabel(label(metric) if ax is axes[0][0] else "")
+        ax.tick_params(axis="x", rotation=35)
+        for tick in ax.get_xticklabels():
+            tick.set_horizontalalignment("right")
+        if panel is not None:
+            ax.set_title(f"{block} = {panel}", fontsize=10)
+    fig.suptitle(f"per {factor}, one point per run", fontsize=10)
+    return fig
+
+
+def solve_time_ecdf_figure(
+    frame: pd.DataFrame, factor: str = "optimizer", block: str | None = None
+) -> plt.Figure:
+    """ECDF of every single solve time of every run, one curve per level of ``factor``.
+
+    With ``block`` (a column), one panel per value of it.
+    """
+    sns.set_theme(style="whitegrid")
+    columns = [factor, "solve_times_s", *([block] if block else [])]
+    solves = frame[columns].explode("solve_times_s").dropna()
+    solves["solve_times_s"] = solves["solve_times_s"].astype(float)
+    solves = solves[solves["solve_times_s"] > 0]
+    order = _order(solves, factor, "solve_times_s")
+    # distinct colours for every curve: tab20 repeats past 20 levels
+    if len(order) <= 10:
+        palette = sns.color_palette("tab10", len(order))
+    elif len(order) <= 20:
+        palette = sns.color_palette("tab20", len(order))
+    else:
+        palette = sns.color_palette("husl", len(order))
+    panels = sorted(solves[block].unique(), key=str) if block else [None]
+    fig, axes = plt.subplots(1, len(panels), figsize=(8.5 * len(panels), 4.8), squeeze=False,
+                             sharey=True, constrained_layout=True)  # fmt: skip
+    for ax, panel in zip(axes[0], panels, strict=True):
+        data = solves if panel is None else solves[solves[block] == panel]
+        sns.ecdfplot(data=data, x="solve_times_s", hue=factor, hue_order=order, ax=ax,
+                     log_scale=True, palette=palette, legend=ax is axes[0][-1])  # fmt: skip
+        ax.set_xlabel("solve time (s), log scale")
+        ax.set_ylabel("fraction of solves")
+        if panel is not None:
+            ax.set_title(f"{block} = {panel}", fontsize=10)
+    legend = axes[0][-1].get_legend()
+    if legend is not None:
+        legend.set_title(factor)
+        sns.move_legend(axes[0][-1], "upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
+    fig.suptitle("Solve-time ECDF (every solve of every run)", fontsize=11)
+    return fig
+
+
+def solves_figure(frame: pd.DataFrame, factor: str = "optimizer") -> plt.Figure:
+    """Solves per run (all UAVs) per level of ``factor``, with and without the trigger."""
+    sns.set_theme(style="whitegrid")
+    data = frame.assign(
+        trigger=frame["trigger"].map(lambda t: "on" if t in (True, "on") else "off")
+    )
+    order = _order(data, factor, "solves_total")
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.55 * len(order) + 3), 4.4), constrained_layout=True)
+    sns.boxplot(
+        data=data,
+        x=factor,
+        y="solves_total",
+        hue="trigger",
+        hue_order=["off", "on"],
+        order=order,
+        ax=ax,
+        showfliers=False,
+    )
+    ax.set_xlabel(factor)
+    ax.set_ylabel(label("solves_total"))
+    ax.tick_params(axis="x", rotation=35)
+    for tick in ax.get_xticklabels():
+        tick.set_horizontalalignment("right")
+    ax.legend(title="trigger", fontsize=8)
+    ax.set_title("Solves per run with and without the event trigger", fontsize=11)
+    return fig
+
+
+def trigger_conditions_figure(frame: pd.DataFrame, factor: str = "optimizer") -> plt.Figure:
+    """Mean solves per run at which each trigger condition held, runs with the trigger only."""
+    sns.set_theme(style="whitegrid")
+    reasons = [c for c in frame.columns if c.startswith("trigger_") and c != "trigger"]
+    triggered = frame[frame["trigger"].map(lambda t: t in (True, "on"))]
+    order = _order(triggered, factor, "solves_total")
+    counts = triggered.groupby(factor)[reasons].mean().reindex(order)
+    counts.columns = [c.removeprefix("trigger_") for c in counts.columns]
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.55 * len(order) + 3), 4.4), constrained_layout=True)
+    counts.plot.bar(ax=ax, rot=35)
+    ax.set_xlabel(factor)
+    ax.set_ylabel("solves per run at which the condition held")
+    ax.legend(
+        title="condition (eqs. 15-18)", fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0)
+    )
+    ax.set_title("Why the UAVs re-solved (trigger on)", fontsize=11)
+    return fig
+
+
+def convergence_figure(curves: pd.DataFrame) -> plt.Figure:
+    """Median (over instants and seeds) best cost relative to the warm start, per optimiser."""
+    sns.set_theme(style="whitegrid")
+    # Each run's best-so-far is a step function of the evaluations: read it on one grid,
+    # so that the medians across runs are taken at equal evaluation counts.
+    points = np.arange(0, curves["evaluations"].max() + 1, 25)
+    pieces = []
+    for (optimizer, _, _), run in curves.groupby(["optimizer", "instant", "seed"]):
+        index = np.searchsorted(run["evaluations"].to_numpy(), points, side="right") - 1
+        known = index >= 0
+        pieces.append(
+            pd.DataFrame(
+                {
+                    "optimizer": optimizer,
+                    "evaluations": points[known],
+                    "relative_cost": run["relative_cost"].to_numpy()[index[known]],
+                }
+            )
+        )
+    grid = pd.concat(pieces, ignore_index=True)
+    fig, ax = plt.subplots(figsize=(8, 4.5), constrained_layout=True)
+    sns.lineplot(
+        data=grid,
+        x="evaluations",
+        y="relative_cost",
+        hue="optimizer",
+        estimator="median",
+        errorbar=("pi", 50),
+        ax=ax,
+    )
+    ax.set_yscale("log")
+    ax.set_xlabel("objective evaluations")
+    ax.set_ylabel("best cost / warm-start cost")
+    ax.set_title("Convergence on recorded paper instants (median, band: 25-75 %)", fontsize=10)
+    return fig
+
+
+def trigger_tradeoff_figure(frame: pd.DataFrame) -> plt.Figure:
+    """Solves saved against tracking and formation error as the thresholds vary."""
+    sns.set_theme(style="whitegrid")
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharex=True, constrained_layout=True)
+    for ax, metric in zip(axes, ("tracking_error_max_m", "distance_error_max_m_max"), strict=True):
+        sns.scatterplot(
+            data=frame,
+            x="solves_saved",
+            y=metric,
+            hue="threshold_m",
+            palette="viridis",
+            ax=ax,
+            s=30,
+            alpha=0.8,
+        )
+        means = frame.groupby("threshold_m")[["solves_saved", metric]].median()
+        ax.plot(means["solves_saved"], means[metric], "k--", lw=1, label="medians")
+        ax.set_xlabel("fraction of solves saved by the trigger")
+        ax.set_ylabel(METRIC_LABELS[metric])
+        ax.legend(title="eps_p = eps_O (m); 0 = no trigger", fontsize=8, title_fontsize=8)
+    fig.suptitle("Trigger trade-off: solves saved against accuracy", fontsize=11)
+    return fig
