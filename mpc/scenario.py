@@ -5,6 +5,7 @@ open (reference path, formation frame, estimate extension, decision blocking,
 weights) are fields with documented defaults, so a sweep can vary them.
 """
 
+
 from __future__ import annotations
 
 import dataclasses
@@ -15,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from formation_bench.fields import setting, validate_fields
 from formation_bench.mpc.reference import REFERENCE_PATHS, ReferencePath
-from formation_bench.optimizers.base import check_int, check_real, coerce_enum
 from formation_bench.plugins import SCENARIO_GROUP, Registry
 
 
@@ -42,73 +43,102 @@ class EstimateExtension(enum.StrEnum):
 class Scenario:
     """A formation-control scenario and the DMPC settings that go with it."""
 
-    name: str = "paper"
-    """Name used in results."""
-    initial_states: tuple[tuple[float, float, float, float], ...] = (
-        (-7.08, -17.96, math.radians(68.02), 13.12),
-        (-18.48, -5.25, math.radians(14.74), 15.43),
-        (-15.46, 11.29, math.radians(-35.97), 16.83),
+    name: str = setting("paper", allowed="any string", doc="Name used in results")
+    initial_states: tuple[tuple[float, float, float, float], ...] = setting(
+        (
+            (-7.08, -17.96, math.radians(68.02), 13.12),
+            (-18.48, -5.25, math.radians(14.74), 15.43),
+            (-15.46, 11.29, math.radians(-35.97), 16.83),
+        ),
+        allowed="at least 2 finite (x, y, heading, speed) tuples",
+        doc="Initial (x m, y m, heading rad, speed m/s) of every UAV (Table 1)",
     )
-    """Initial ``(x m, y m, heading rad, speed m/s)`` of every UAV (Table 1)."""
-    formation_offsets: tuple[tuple[float, float], ...] = (
-        (10.0 / 3.0, -10.0),
-        (-20.0 / 3.0, 0.0),
-        (10.0 / 3.0, 10.0),
+    formation_offsets: tuple[tuple[float, float], ...] = setting(
+        ((10.0 / 3.0, -10.0), (-20.0 / 3.0, 0.0), (10.0 / 3.0, 10.0)),
+        allowed="one (x, y) per UAV, zero mean",
+        doc="Desired position of every UAV relative to the formation centre, m, in formation_frame",
     )
-    """Desired position of every UAV relative to the formation centre, in metres, in
-    ``formation_frame``. Their mean must be zero (the centre is the UAVs' mean). The
-    default is the paper's isosceles right triangle: hypotenuse 20 m between UAV 1 and
-    UAV 3 across the path, UAV 2 at the right angle trailing."""
-    formation_frame: FormationFrame = FormationFrame.PATH
-    """Frame of the offsets: turning with the reference heading, or fixed in the world."""
-    reference: str = "turn"
-    """Reference path of the formation centre: one of :data:`REFERENCE_PATHS`."""
-    reference_start: tuple[float, float] | None = None
-    """Where the reference path starts at t = 0, metres; None = the UAVs' initial centre
-    (their mean initial position)."""
-    period_s: float = 0.2
-    """Control update period delta_T, seconds, > 0."""
-    horizon_steps: int = 20
-    """Prediction horizon in periods (Tp = horizon_steps * period_s), >= 1."""
-    n_steps: int = 240
-    """Update instants simulated, >= 1."""
-    accel_bounds: tuple[float, float] = (-7.0, 7.0)
-    """Bounds on the acceleration a, m/s^2, lower < upper."""
-    turn_rate_bounds: tuple[float, float] = (-0.25, 0.25)
-    """Bounds on the turn rate omega, rad/s, lower < upper."""
-    w_dst: float = 1.0
-    """Weight of the relative-position (formation) term of eq. (14), >= 0."""
-    w_trj: float = 3.0
-    """Weight of the formation-centre tracking term of eq. (14), >= 0. The default 3 (with
-    w_dst = 1) was chosen by measurement: see docs/design.md."""
-    n_blocks: int = 5
-    """Control blocks per horizon: the decision vector holds ``2 * n_blocks`` numbers, each
-    control held over ``horizon_steps / n_blocks`` periods. 1..horizon_steps. The default 5
-    (d = 10) was chosen by measurement: see docs/design.md."""
-    estimate_extension: EstimateExtension = EstimateExtension.COAST
-    """How neighbour estimates are extended past the end of their last plan."""
-    eps_p: float = 2.0
-    """Trigger threshold on the predicted relative-position error, eq. (15), metres, >= 0."""
-    eps_o: float = 2.0
-    """Trigger threshold on the formation-centre tracking error, eq. (16), metres, >= 0."""
-    eta: float = 1.0
-    """Trigger fraction of the control bound, eq. (17), in (0, 1]."""
-    trigger_lookahead_steps: int | None = None
+    """Their mean must be zero (the centre is the UAVs' mean). The default is the paper's
+    isosceles right triangle: hypotenuse 20 m between UAV 1 and UAV 3 across the path, UAV 2 at
+    the right angle trailing."""
+    formation_frame: FormationFrame = setting(
+        FormationFrame.PATH,
+        doc="Frame of the offsets: turning with the reference heading, or fixed in the world",
+    )
+    reference: str = setting(
+        "turn",
+        choices=lambda: sorted(REFERENCE_PATHS),
+        doc="Reference path of the formation centre: one of REFERENCE_PATHS",
+    )
+    reference_start: tuple[float, float] | None = setting(
+        None,
+        optional=True,
+        allowed="two finite numbers",
+        doc="Where the reference path starts at t = 0, m; None = the UAVs' initial centre",
+    )
+    """None means the UAVs' mean initial position."""
+    period_s: float = setting(
+        0.2, low=0.0, low_open=True, doc="Control update period delta_T, seconds"
+    )
+    horizon_steps: int = setting(
+        20, low=1, high=10_000, doc="Prediction horizon in periods (Tp = horizon_steps * period_s)"
+    )
+    n_steps: int = setting(240, low=1, high=10_000_000, doc="Update instants simulated")
+    accel_bounds: tuple[float, float] = setting(
+        (-7.0, 7.0), allowed="finite (lower, upper), lower < upper",
+        doc="Bounds on the acceleration a, m/s^2",
+    )  # fmt: skip
+    turn_rate_bounds: tuple[float, float] = setting(
+        (-0.25, 0.25), allowed="finite (lower, upper), lower < upper",
+        doc="Bounds on the turn rate omega, rad/s",
+    )  # fmt: skip
+    w_dst: float = setting(
+        1.0, low=0.0, doc="Weight of the relative-position (formation) term of eq. (14)"
+    )
+    w_trj: float = setting(
+        3.0, low=0.0, doc="Weight of the formation-centre tracking term of eq. (14)"
+    )
+    """The default 3 (with w_dst = 1) was chosen by measurement: see docs/design.md."""
+    n_blocks: int = setting(
+        5, low=1, high="horizon_steps",
+        doc="Control blocks per horizon: the decision vector holds 2 * n_blocks numbers",
+    )  # fmt: skip
+    """Each control is held over ``horizon_steps / n_blocks`` periods. The default 5 (d = 10)
+    was chosen by measurement: see docs/design.md."""
+    estimate_extension: EstimateExtension = setting(
+        EstimateExtension.COAST,
+        doc="How neighbour estimates are extended past the end of their last plan",
+    )
+    eps_p: float = setting(
+        2.0, low=0.0,
+        doc="Trigger threshold on the predicted relative-position error, eq. (15), metres",
+    )  # fmt: skip
+    eps_o: float = setting(
+        2.0, low=0.0,
+        doc="Trigger threshold on the formation-centre tracking error, eq. (16), metres",
+    )  # fmt: skip
+    eta: float = setting(
+        1.0, low=0.0, high=1.0, low_open=True,
+        doc="Trigger fraction of the control bound, eq. (17)",
+    )  # fmt: skip
+    trigger_lookahead_steps: int | None = setting(
+        None, kind=int, optional=True, low=0, high="horizon_steps",
+        doc="Periods after t_c at which conditions (15)-(16) are checked; None = whole horizon",
+    )  # fmt: skip
     """Conditions (15)-(16) are checked on the predicted trajectories at t_c and this many
-    periods after it: None (the default) = the whole horizon, reading eq. (16)'s ``t`` as
-    any predicted time; 0 checks t_c only. None or 0..horizon_steps."""
-    settle_time_s: float = 10.0
-    """Metrics of tracking and formation error count from this time on, seconds, >= 0."""
-    rk4_substeps: int = 1
-    """RK4 sub-steps per control period in prediction and plant, >= 1."""
+    periods after it: None (the default) = the whole horizon, reading eq. (16)'s ``t`` as any
+    predicted time; 0 checks t_c only."""
+    settle_time_s: float = setting(
+        10.0, low=0.0,
+        doc="Metrics of tracking and formation error count from this time on, seconds",
+    )  # fmt: skip
+    rk4_substeps: int = setting(
+        1, low=1, high=1000, doc="RK4 sub-steps per control period in prediction and plant"
+    )
 
     def __post_init__(self) -> None:
-        owner = type(self).__name__
-        for name, enum_type in (
-            ("formation_frame", FormationFrame),
-            ("estimate_extension", EstimateExtension),
-        ):
-            object.__setattr__(self, name, coerce_enum(owner, name, enum_type, getattr(self, name)))
+        validate_fields(self)
+        # the structured fields are checked together, after the declared ranges
         states = np.asarray(self.initial_states, dtype=np.float64)
         offsets = np.asarray(self.formation_offsets, dtype=np.float64)
         if states.ndim != 2 or states.shape[1] != 4 or states.shape[0] < 2:
@@ -128,11 +158,6 @@ class Scenario:
                 "Scenario.formation_offsets must have zero mean (offsets are relative to the "
                 f"formation centre), got mean {offsets.mean(axis=0).tolist()}"
             )
-        if self.reference not in REFERENCE_PATHS:
-            raise ValueError(
-                f"Scenario.reference must be one of {', '.join(sorted(REFERENCE_PATHS))}, "
-                f"got {self.reference!r}"
-            )
         if self.reference_start is not None and (
             len(self.reference_start) != 2
             or not all(math.isfinite(c) for c in self.reference_start)
@@ -141,9 +166,6 @@ class Scenario:
                 f"Scenario.reference_start must be None or two finite numbers, "
                 f"got {self.reference_start!r}"
             )
-        check_real(owner, "period_s", self.period_s, 0.0, low_open=True)
-        check_int(owner, "horizon_steps", self.horizon_steps, 1, 10_000)
-        check_int(owner, "n_steps", self.n_steps, 1, 10_000_000)
         for field_name in ("accel_bounds", "turn_rate_bounds"):
             lo, hi = getattr(self, field_name)
             if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
@@ -151,22 +173,6 @@ class Scenario:
                     f"Scenario.{field_name} must be finite (lower, upper) with lower < upper, "
                     f"got {(lo, hi)}"
                 )
-        check_real(owner, "w_dst", self.w_dst, 0.0)
-        check_real(owner, "w_trj", self.w_trj, 0.0)
-        check_int(owner, "n_blocks", self.n_blocks, 1, self.horizon_steps)
-        check_real(owner, "eps_p", self.eps_p, 0.0)
-        check_real(owner, "eps_o", self.eps_o, 0.0)
-        check_real(owner, "eta", self.eta, 0.0, 1.0, low_open=True)
-        if self.trigger_lookahead_steps is not None:
-            check_int(
-                owner,
-                "trigger_lookahead_steps",
-                self.trigger_lookahead_steps,
-                0,
-                self.horizon_steps,
-            )
-        check_real(owner, "settle_time_s", self.settle_time_s, 0.0)
-        check_int(owner, "rk4_substeps", self.rk4_substeps, 1, 1000)
 
     @property
     def n_uav(self) -> int:
@@ -267,7 +273,7 @@ register_scenario(dataclasses.replace(PAPER, name="paper-straight", reference="s
 register_scenario(dataclasses.replace(PAPER, name="paper-s-curve", reference="s-curve"))
 
 
-def get_scenario(name: str, **overrides: Any) -> Scenario:
+def get_scenario(name: str, /, **overrides: Any) -> Scenario:
     """The scenario registered as ``name``, with fields replaced by ``overrides``."""
     if name not in SCENARIOS:
         raise SCENARIOS.unknown(name)

@@ -14,13 +14,21 @@ evaluation budget or forget to count an evaluation.
 from __future__ import annotations
 
 import abc
-import enum
 import math
 from dataclasses import dataclass, field
 from time import perf_counter
 from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
+
+# The config-field checks live in the neutral formation_bench.fields; re-exported here so that
+# existing imports keep working.
+from formation_bench.fields import (  # noqa: F401
+    check_bool,
+    check_int,
+    check_real,
+    coerce_enum,
+)
 
 
 class BatchObjective(Protocol):
@@ -347,68 +355,3 @@ class PopulationOptimizer(Optimizer, Generic[StateT]):
     def result_info(self, state: StateT) -> dict[str, Any]:
         """Optimiser-specific extras copied into :attr:`OptimizeResult.info`."""
         return {}
-
-
-# --- validation helpers for optimiser config dataclasses -------------------------------------
-# Shared so that every optimiser's __post_init__ reports a bad field the same way:
-# "<Class>.<field> must be ..., got <value>".
-
-EnumT = TypeVar("EnumT", bound=enum.Enum)
-
-
-def coerce_enum(owner: str, name: str, enum_type: type[EnumT], value: object) -> EnumT:
-    """``value`` as a member of ``enum_type``.
-
-    Accepts a member, its name in any case with '-' for '_' (the CLI passes
-    strings, e.g. ``replacement_map=tent``), or its value.
-    """
-    if isinstance(value, enum_type):
-        return value
-    if isinstance(value, str):
-        key = value.strip().upper().replace("-", "_")
-        if key in enum_type.__members__:
-            return enum_type[key]
-    if not isinstance(value, bool):
-        try:
-            return enum_type(value)
-        except (ValueError, TypeError):
-            pass
-    allowed = ", ".join(m.name.lower() for m in enum_type)
-    raise ValueError(f"{owner}.{name} must be one of {allowed}, got {value!r}")
-
-
-def check_int(owner: str, name: str, value: object, low: int, high: int | None = None) -> int:
-    """``value`` if it is an integer (not a bool) in ``[low, high]``, else ValueError."""
-    ok = isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
-    if ok and low <= value and (high is None or value <= high):  # type: ignore[operator]
-        return int(value)  # type: ignore[arg-type]
-    allowed = f">= {low}" if high is None else f"in [{low}, {high}]"
-    raise ValueError(f"{owner}.{name} must be an integer {allowed}, got {value!r}")
-
-
-def check_real(
-    owner: str,
-    name: str,
-    value: object,
-    low: float,
-    high: float = math.inf,
-    *,
-    low_open: bool = False,
-) -> float:
-    """``value`` as a float if finite and in ``[low, high]`` (``(low, high]`` if ``low_open``)."""
-    ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
-        value, bool | np.bool_
-    )
-    if ok:
-        v = float(value)  # type: ignore[arg-type]
-        if math.isfinite(v) and (v > low if low_open else v >= low) and v <= high:
-            return v
-    interval = f"{'(' if low_open else '['}{low}, {high}{']' if math.isfinite(high) else ')'}"
-    raise ValueError(f"{owner}.{name} must be a finite number in {interval}, got {value!r}")
-
-
-def check_bool(owner: str, name: str, value: object) -> bool:
-    """``value`` if it is a bool, else ValueError."""
-    if isinstance(value, bool | np.bool_):
-        return bool(value)
-    raise ValueError(f"{owner}.{name} must be True or False, got {value!r}")

@@ -51,16 +51,16 @@ def cluster_centres(
 
 @njit(cache=True)
 def cluster_population(
-    population: np.ndarray, costs: np.ndarray, uniforms: np.ndarray, max_iter: int
+    population: np.ndarray, costs: np.ndarray, uniforms: np.ndarray, kmeans_max_iter: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """BSO's clustering step: ``(labels, centre_index, sizes)``.
 
-    k-means (Lloyd, at most ``max_iter`` updates) from ``m = len(uniforms)``
+    k-means (Lloyd, at most ``kmeans_max_iter`` updates) from ``m = len(uniforms)``
     distinct members chosen by :func:`distinct_indices`, then
     :func:`cluster_centres`. Fused into one kernel to save Python-level calls.
     """
     idx = distinct_indices(uniforms, population.shape[0])
-    labels, _ = lloyd_kmeans_kernel(population, population[idx], max_iter)
+    labels, _ = lloyd_kmeans_kernel(population, population[idx], kmeans_max_iter)
     centre, sizes = cluster_centres(labels, costs, uniforms.shape[0])
     return labels, centre, sizes
 

@@ -42,6 +42,9 @@ from formation_bench.optimizers.bso_clusters import (  # noqa: F401
 )
 from formation_bench.optimizers.chaos import step_inplace
 
+# The slot-wise selection is generic population code; re-exported as a BSO operator.
+from formation_bench.optimizers.population import greedy_select  # noqa: F401
+
 SHI_UNIFORMS_PER_IDEA = 7
 """Columns of the uniforms driving :func:`shi_select`, in this order:
 0 one cluster (``< p_one_cluster``) or two; 1 first cluster; 2 centre(s)
@@ -256,38 +259,16 @@ def install_best(
 
 
 @njit(cache=True)
-def greedy_select(
-    old_x: np.ndarray, old_f: np.ndarray, new_x: np.ndarray, new_f: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """Slot-wise selection: ``new_x[i]`` replaces ``old_x[i]`` only if strictly better.
-
-    ``new_x`` may have fewer rows than ``old_x`` (a batch truncated by the
-    budget); the remaining slots keep their old members. Returns
-    ``(x, f, number of replaced slots)``. NaN costs never win a comparison;
-    the evaluation counter already maps them to ``+inf``.
-    """
-    x = old_x.copy()
-    f = old_f.copy()
-    improved = 0
-    for i in range(new_x.shape[0]):
-        if new_f[i] < old_f[i]:
-            x[i] = new_x[i]
-            f[i] = new_f[i]
-            improved += 1
-    return x, f, improved
-
-
-@njit(cache=True)
 def generate_ideas(
     population: np.ndarray,
     labels: np.ndarray,
     centre_index: np.ndarray,
     sizes: np.ndarray,
     idea_uniforms: np.ndarray,
-    all_centre: bool,
+    all_centre_weighting: bool,
     weight_map: int,
     n_weight_iterations: int,
-    normalise: bool,
+    normalise_weights: bool,
     p_one_cluster: float,
     p_one_centre: float,
     p_two_centres: float,
@@ -297,18 +278,24 @@ def generate_ideas(
     scale: np.ndarray,
     lower: np.ndarray,
     upper: np.ndarray,
-    bound_mode: int,
+    bound_handling: int,
     resample_uniforms: np.ndarray,
 ) -> np.ndarray:
     """All N new ideas of one iteration: auxiliary solutions, eq. (10) step, bound handling.
 
-    ``idea_uniforms`` is ``(N, m)`` chaotic seeds when ``all_centre`` (eqs.
-    8-9) and ``(N, 7)`` :func:`shi_select` uniforms otherwise (the three
-    probabilities are read only then).
+    ``idea_uniforms`` is ``(N, m)`` chaotic seeds when ``all_centre_weighting``
+    (eqs. 8-9) and ``(N, 7)`` :func:`shi_select` uniforms otherwise (the three
+    probabilities are read only then). The settings parameters are named as the
+    config fields they come from, so the kernels pass them as ``name=s.name``.
     """
-    if all_centre:
+    if all_centre_weighting:
         aux = all_centre_auxiliary(
-            population, centre_index, idea_uniforms, weight_map, n_weight_iterations, normalise
+            population,
+            centre_index,
+            idea_uniforms,
+            weight_map,
+            n_weight_iterations,
+            normalise_weights,
         )
     else:
         aux = shi_select(
@@ -323,5 +310,5 @@ def generate_ideas(
         )
     # aux is this kernel's own array: step and repair it in place (no extra allocations)
     _perturb_inplace(aux, factor, rand, normals, scale)
-    apply_bounds_inplace(aux, lower, upper, bound_mode, resample_uniforms)
+    apply_bounds_inplace(aux, lower, upper, bound_handling, resample_uniforms)
     return aux

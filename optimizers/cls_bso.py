@@ -7,8 +7,9 @@ searches of Gao's group, e.g. Gao et al., "Gravitational search algorithm
 combined with chaos for unconstrained numerical optimization", Applied
 Mathematics and Computation 231, 2014.)
 
-Every iteration is one iteration of :class:`~formation_bench.optimizers.original_bso.OriginalBSO`
-plus a chaotic local search of ``n_local`` points
+Every iteration is one step of Shi's BSO
+(:func:`~formation_bench.optimizers.original_bso_kernels.shi_step`) plus a chaotic local
+search of ``n_local`` points
 
     x_k = x_best + r_t (upper - lower) (2 z_k - 1),   k = 1..n_local,
 
@@ -32,6 +33,7 @@ The default population is 25 with 5 local points per iteration: 30 evaluations
 per iteration, the same budget as the other population optimisers.
 """
 
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -40,38 +42,54 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
-from formation_bench.optimizers.base import (
-    Bounds,
-    EvaluationCounter,
-    check_int,
-    check_real,
-    coerce_enum,
-)
-from formation_bench.optimizers.bso_ops import BoundHandling, apply_bounds_inplace, greedy_select
+from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
+from formation_bench.optimizers.bso_ops import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.chaos import ChaoticMap, step_inplace
-from formation_bench.optimizers.original_bso import OriginalBSO
-from formation_bench.optimizers.original_bso_kernels import ShiSettings, shi_step
+from formation_bench.optimizers.original_bso_kernels import ShiConfig, ShiSettings, shi_step
 from formation_bench.optimizers.population import (
     RandomAhead,
     evaluate_prefix,
+    greedy_select,
     initial_population,
     iteration_randoms,
     no_randoms,
     progress,
 )
+from formation_bench.optimizers.registry import register
 
 
-class LocalSettings(NamedTuple):
-    """The local search's kernel arguments, fixed during a solve, in their order."""
+@dataclass(frozen=True)
+class LocalSearchConfig(Validated):
+    """The chaotic local search's settings, declared once (composed with Shi's in the optimiser).
 
-    map_id: int
-    """The :class:`~formation_bench.optimizers.chaos.ChaoticMap` of the local search sequence."""
-    n_local: int
-    """Local search points per iteration."""
-    radius_start: float
-    """Search radius at the first iteration, as a fraction of the range."""
-    radius_end: float
-    """Search radius at the last planned iteration."""
+    Declared next to the kernels that read them: the fields marked
+    ``kernel=True`` make :class:`LocalSettings`, which :func:`cls_iteration`
+    rebuilds and reads by name.
+    """
+
+    n_local: int = setting(5, low=1, kernel=True, doc="Chaotic local search points per iteration")
+    local_radius_start: float = setting(
+        0.1, low=0.0, high=1.0, low_open=True, kernel=True,
+        doc="Search radius at the first iteration, as a fraction of the range",
+    )  # fmt: skip
+    local_radius_end: float = setting(
+        0.001, low=0.0, high="local_radius_start", low_open=True, kernel=True,
+        doc="Search radius at the last planned iteration",
+    )  # fmt: skip
+    local_map: ChaoticMap = setting(
+        ChaoticMap.LOGISTIC, kernel=True, doc="Chaotic map of the local search sequence"
+    )
+
+
+LocalSettings = kernel_settings_class(
+    "LocalSettings",
+    __name__,
+    LocalSearchConfig,
+    (),
+    """What :func:`cls_iteration` reads of the local search: the kernel fields of
+    :class:`LocalSearchConfig` (the map as an integer).""",
+)
 
 
 class LocalSearchState(NamedTuple):
@@ -92,10 +110,12 @@ class LocalSearchState(NamedTuple):
     value of the chaotic sequence of every coordinate (only that row at first)."""
     costs: np.ndarray
     """Costs of the ideas and local points (+inf if not evaluated); empty at first."""
-    settings: ShiSettings
-    """The BSO kernel arguments fixed for the solve."""
-    local: LocalSettings
-    """The local search's kernel arguments."""
+    settings: tuple
+    """The packed :class:`~formation_bench.optimizers.original_bso_kernels.ShiSettings`."""
+    local: tuple
+    """The packed :class:`LocalSettings`."""
+    t_max: int
+    """Planned iterations (also in ``settings``; read here by the Python side)."""
     randoms: RandomAhead
     """Random numbers drawn ahead for the next iterations."""
     replacements: int = 0
@@ -110,9 +130,13 @@ class LocalSearchState(NamedTuple):
 
 
 @njit(cache=True)
-def local_radius(start: float, end: float, iteration: int, t_max: int) -> float:
-    """Geometric schedule: ``start`` at iteration 1, ``end`` at iteration ``t_max``."""
-    return start * (end / start) ** progress(iteration, t_max)
+def local_radius(
+    local_radius_start: float, local_radius_end: float, iteration: int, t_max: int
+) -> float:
+    """Geometric schedule: ``local_radius_start`` at iteration 1, ``local_radius_end`` at
+    iteration ``t_max``."""
+    ratio = local_radius_end / local_radius_start
+    return local_radius_start * ratio ** progress(iteration, t_max)
 
 
 @njit(cache=True)
@@ -120,13 +144,13 @@ def local_candidates(
     ideas: np.ndarray,
     x: np.ndarray,
     f: np.ndarray,
-    map_id: int,
+    local_map: int,
     z: np.ndarray,
     n_local: int,
     radius: float,
     lower: np.ndarray,
     upper: np.ndarray,
-    bound_mode: int,
+    bound_handling: int,
     resample_uniforms: np.ndarray,
 ) -> np.ndarray:
     """The ideas, the local search points and the sequence's next state, stacked.
@@ -134,7 +158,7 @@ def local_candidates(
     Rows ``0..N-1`` are ``ideas``; row ``N + k`` (k < n_local) is
     ``x_best + radius (upper - lower) (2 z_{k+1} - 1)`` brought into the box by
     ``bound_mode``, with ``x_best`` the lowest-cost row of ``x`` and ``z_{k+1}``
-    the (k+1)-th iterate of ``z`` under the map ``map_id``; the last row is the
+    the (k+1)-th iterate of ``z`` under the map ``local_map``; the last row is the
     last iterate (the next ``z``). ``resample_uniforms`` (n_local x D) is read
     only by RESAMPLE.
     """
@@ -145,11 +169,11 @@ def local_candidates(
     sequence = z.copy()
     scratch = np.empty(d)
     for k in range(n_local):
-        step_inplace(map_id, sequence, scratch)
+        step_inplace(local_map, sequence, scratch)
         for c in range(d):
             out[n + k, c] = best[c] + radius * (upper[c] - lower[c]) * (2.0 * sequence[c] - 1.0)
     out[n + n_local] = sequence
-    apply_bounds_inplace(out[n : n + n_local], lower, upper, bound_mode, resample_uniforms)
+    apply_bounds_inplace(out[n : n + n_local], lower, upper, bound_handling, resample_uniforms)
     return out
 
 
@@ -191,75 +215,56 @@ def cls_iteration(
     normals: np.ndarray,
     resample_local: np.ndarray,
     iteration: int,
-    map_id: int,
-    n_local: int,
-    radius_start: float,
-    radius_end: float,
-    t_max: int,
-    slope: float,
-    n_clusters: int,
-    kmeans_max_iter: int,
-    p_replace: float,
-    p_one_cluster: float,
-    p_one_centre: float,
-    p_two_centres: float,
-    scale: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    bound_mode: int,
+    shi_packed: tuple,
+    local_packed: tuple,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """One iteration besides the evaluations: ``(x, f, candidates, 1 if the local point won)``.
 
     :func:`select_with_local` of the last ``candidates``, then
     :func:`~formation_bench.optimizers.original_bso_kernels.shi_step` and :func:`local_candidates`
     around the selected population's best, from the sequence value in the
-    last row of ``candidates``. The arguments from ``map_id`` to
-    ``radius_end`` are the fields of :class:`LocalSettings`, the rest those of
-    :class:`~formation_bench.optimizers.original_bso_kernels.ShiSettings`.
+    last row of ``candidates``. ``shi_packed`` and ``local_packed`` are the
+    packed :class:`~formation_bench.optimizers.original_bso_kernels.ShiSettings` and
+    :class:`LocalSettings`.
     """
+    s = ShiSettings(*shi_packed)
+    local = LocalSettings(*local_packed)
     n = x.shape[0]
     x, f, improved = select_with_local(x, f, candidates, costs, n)
     z = candidates[candidates.shape[0] - 1]
-    ideas = shi_step(
-        x, f, u, normals, iteration, t_max, slope, n_clusters, kmeans_max_iter, p_replace,
-        p_one_cluster, p_one_centre, p_two_centres, scale, lower, upper, bound_mode,
-    )  # fmt: skip
-    radius = local_radius(radius_start, radius_end, iteration, t_max)
-    out = local_candidates(
-        ideas, x, f, map_id, z, n_local, radius, lower, upper, bound_mode, resample_local
+    ideas = shi_step(x, f, u, normals, iteration, s)
+    radius = local_radius(
+        local_radius_start=local.local_radius_start,
+        local_radius_end=local.local_radius_end,
+        iteration=iteration,
+        t_max=s.t_max,
     )
+    out = local_candidates(
+        ideas, x, f, local_map=local.local_map, z=z, n_local=local.n_local, radius=radius,
+        lower=s.lower, upper=s.upper, bound_handling=s.bound_handling,
+        resample_uniforms=resample_local,
+    )  # fmt: skip
     return x, f, out, improved
 
 
 @dataclass(frozen=True)
-class ChaoticLocalSearchBSO(OriginalBSO):
-    """:class:`OriginalBSO` plus a chaotic local search around the best idea each iteration."""
+class ChaoticLocalSearchBSO(LocalSearchConfig, ShiConfig, PopulationOptimizer[LocalSearchState]):
+    """Shi's BSO step plus a chaotic local search around the best idea each iteration.
 
-    population_size: int = 25
-    """N, ideas per iteration (>= 2); 25 + ``n_local`` = 30 evaluations per iteration."""
-    n_local: int = 5
-    """Chaotic local search points per iteration (>= 1)."""
-    local_radius_start: float = 0.1
-    """Search radius at the first iteration, as a fraction of the range ((0, 1])."""
-    local_radius_end: float = 0.001
-    """Search radius at the last planned iteration ((0, local_radius_start])."""
-    local_map: ChaoticMap = ChaoticMap.LOGISTIC
-    """Chaotic map of the local search sequence."""
+    Composed of Shi's settings and step
+    (:class:`~formation_bench.optimizers.original_bso_kernels.ShiConfig`,
+    :func:`~formation_bench.optimizers.original_bso_kernels.shi_step`) and the local search's
+    (:class:`LocalSearchConfig`, :func:`local_candidates`); the fields are Shi's, then the
+    local search's.
+    """
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        owner = type(self).__name__
-        put = object.__setattr__
-        put(self, "n_local", check_int(owner, "n_local", self.n_local, 1))
-        start = check_real(
-            owner, "local_radius_start", self.local_radius_start, 0.0, 1.0, low_open=True
-        )
-        put(self, "local_radius_start", start)
-        end = check_real(
-            owner, "local_radius_end", self.local_radius_end, 0.0, start, low_open=True
-        )
-        put(self, "local_radius_end", end)
-        put(self, "local_map", coerce_enum(owner, "local_map", ChaoticMap, self.local_map))
+    population_size: int = setting(
+        25, low=2, doc="N, ideas per iteration; 25 + n_local = 30 evaluations per iteration"
+    )
+
+    @property
+    def default_budget(self) -> Budget:
+        return Budget(max_iterations=self.max_iterations)
 
     def evaluations_per_step(self) -> int:
         return self.population_size + self.n_local
@@ -267,7 +272,7 @@ class ChaoticLocalSearchBSO(OriginalBSO):
     def initial_evaluations(self) -> int:
         return self.population_size
 
-    def result_info(self, state: LocalSearchState) -> dict[str, Any]:  # type: ignore[override]
+    def result_info(self, state: LocalSearchState) -> dict[str, Any]:
         return {
             "random_replacements": state.replacements,
             "local_search_improvements": state.improvements,
@@ -280,32 +285,29 @@ class ChaoticLocalSearchBSO(OriginalBSO):
         rng: np.random.Generator,
         x0: np.ndarray | None,
         max_iterations: int,
-    ) -> LocalSearchState:  # type: ignore[override]
+    ) -> LocalSearchState:
         x, f = initial_population(counter, bounds, rng, self.population_size, x0)
         n, d = x.shape
-        local = LocalSettings(
-            int(self.local_map), self.n_local, self.local_radius_start, self.local_radius_end
-        )
         return LocalSearchState(
             x=x,
             f=f,
             candidates=rng.random((1, d)),
             costs=np.empty(0),
             settings=self.shi_settings(bounds, max_iterations),
-            local=local,
+            local=pack_settings(LocalSettings, self),
+            t_max=int(max_iterations),
             randoms=no_randoms(self.uniforms_per_step(n, d), (n, d)),
         )
 
     def step(
         self,
-        state: LocalSearchState,  # type: ignore[override]
+        state: LocalSearchState,
         counter: EvaluationCounter,
         bounds: Bounds,
         rng: np.random.Generator,
         iteration: int,
     ) -> LocalSearchState:
-        settings = state.settings
-        randoms, u, normals = iteration_randoms(state.randoms, rng, iteration, settings.t_max)
+        randoms, u, normals = iteration_randoms(state.randoms, rng, iteration, state.t_max)
         resample_local = (
             rng.random((self.n_local, bounds.dim))
             if self.bound_handling is BoundHandling.RESAMPLE
@@ -313,12 +315,19 @@ class ChaoticLocalSearchBSO(OriginalBSO):
         )
         x, f, candidates, improved = cls_iteration(
             state.x, state.f, state.candidates, state.costs, u, normals, resample_local,
-            iteration, *state.local, *settings,
+            iteration, state.settings, state.local,
         )  # fmt: skip
         # one objective call for the ideas and the local points (ideas first under a short budget)
         costs = evaluate_prefix(counter, candidates[:-1])
         replaced = bool(u[self.n_clusters] < self.p_replace)
         return LocalSearchState(
-            x, f, candidates, costs, settings, state.local, randoms,
+            x, f, candidates, costs, state.settings, state.local, state.t_max, randoms,
             state.replacements + replaced, state.improvements + improved,
         )  # fmt: skip
+
+
+register(
+    "cls-bso",
+    ChaoticLocalSearchBSO(),
+    "Shi's BSO + chaotic local search around the best idea (after CBSO, Yu et al. 2018)",
+)

@@ -26,43 +26,33 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from formation_bench.optimizers.base import (
-    Bounds,
-    Budget,
-    EvaluationCounter,
-    PopulationOptimizer,
-    check_bool,
-    check_int,
-    check_real,
-    coerce_enum,
-)
+from formation_bench.fields import pack_settings
+from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
     chaotic_candidates,
     cluster_centres,
     distinct_indices,
-    greedy_select,
 )
 from formation_bench.optimizers.chaos import ChaoticMap
-from formation_bench.optimizers.clustering import (
-    DEFAULT_MAX_ITER,
-    ClusteringBackend,
-    sklearn_kmeans,
-)
+from formation_bench.optimizers.clustering import ClusteringBackend, sklearn_kmeans
 from formation_bench.optimizers.modified_bso_kernels import (
     KernelSettings,
+    ModifiedBSOConfig,
     ideas_from_clusters,
     modified_bso_iteration,
 )
 from formation_bench.optimizers.population import (
     RandomAhead,
     evaluate_prefix,
+    greedy_select,
     initial_population,
     iteration_randoms,
     no_randoms,
     step_scale,
 )
+from formation_bench.optimizers.registry import register
 
 
 class ModifiedBSOState(NamedTuple):
@@ -86,7 +76,9 @@ class ModifiedBSOState(NamedTuple):
     idea_costs: np.ndarray
     """Their costs (+inf for ideas not evaluated for lack of budget)."""
     settings: KernelSettings
-    """The kernel arguments fixed for the solve (T_max, bounds, step scale, configuration)."""
+    """The kernel settings fixed for the solve (T_max, bounds, step scale, configuration)."""
+    packed: tuple
+    """``settings`` as the plain tuple the kernels take."""
     randoms: RandomAhead
     """Random numbers drawn ahead for the next iterations."""
     replacements: int = 0
@@ -99,97 +91,9 @@ class ModifiedBSOState(NamedTuple):
 
 
 @dataclass(frozen=True)
-class ModifiedBSO(PopulationOptimizer[ModifiedBSOState]):
-    """Modified BSO: chaotic centre replacement and chaotic all-centre auxiliary solutions.
-
-    The chaotic replacement overwrites the chosen centre with the best
-    chaotic candidate **even when that candidate is worse** than the centre,
-    as published (the best member found so far is still kept by the
-    evaluation counter). Its ``n_r`` candidates are evaluated in one batch
-    and count toward the budget.
-
-    Under an evaluation budget the last batch is truncated: only the first
-    ``remaining`` ideas are evaluated and the other slots keep their members,
-    and a replacement is skipped when fewer than ``n_r`` evaluations remain,
-    so ``nfev`` equals ``max_evaluations`` exactly when that limit binds.
-    The logsig schedule's T_max is the number of iterations the budget
-    allows (see :meth:`evaluations_per_step`).
-    """
-
-    population_size: int = 30
-    """N, ideas per iteration (>= 2)."""
-    n_clusters: int = 5
-    """m, k-means clusters (1..N)."""
-    max_iterations: int = 40
-    """T_max when the caller gives no budget (>= 0); the default budget."""
-    slope: float = 20.0
-    """k, slope of the logsig step-size schedule of eq. (10) (> 0)."""
-    p_replace: float = 0.2
-    """p_r, probability per iteration of a chaotic centre replacement ([0, 1])."""
-    n_replace: int = 10
-    """n_r, chaotic candidates per replacement (>= 1)."""
-    n_weight_iterations: int = 10
-    """n_h, iterations of the weight map from the random seed ch(0) (>= 0)."""
-    replacement_map: ChaoticMap = ChaoticMap.LOGISTIC
-    """f_rmap, chaotic map of the replacement candidates (eq. 6)."""
-    weight_map: ChaoticMap = ChaoticMap.LOGISTIC
-    """f_hmap, chaotic map of the centre weights (eq. 8)."""
-    normalise_weights: bool = True
-    """Scale each idea's weights to sum to one (False: the raw weights printed in eq. 9)."""
-    step_scale: float = 0.1
-    """Multiplier of the N(0, 1) step of eq. (10) (> 0)."""
-    step_relative_to_range: bool = True
-    """Multiply ``step_scale`` by each coordinate's range ``upper - lower``."""
-    bound_handling: BoundHandling = BoundHandling.CLIP
-    """How ideas outside the bounds are brought back."""
-    clustering: ClusteringBackend = ClusteringBackend.COMPILED
-    """k-means implementation."""
-    kmeans_max_iter: int = DEFAULT_MAX_ITER
-    """Cap on Lloyd iterations per clustering (>= 1)."""
-    p_one_cluster: float = 0.8
-    """Shi's p_6b: idea from one cluster rather than two ([0, 1]; all-centre weighting off)."""
-    p_one_centre: float = 0.4
-    """Shi's p_6biii: one-cluster idea is the centre, else a random member ([0, 1])."""
-    p_two_centres: float = 0.5
-    """Shi's p_6c: two-cluster idea mixes the centres, else random members ([0, 1])."""
-    chaos_replacement: bool = True
-    """Ablation switch: chaotic centre replacement (eqs. 6-7)."""
-    all_centre_weighting: bool = True
-    """Ablation switch: all-centre auxiliary solutions (eqs. 8-9), else Shi's selection."""
-
-    def __post_init__(self) -> None:
-        owner = type(self).__name__
-        put = object.__setattr__  # frozen: normalised values are written back this way
-        put(self, "population_size", check_int(owner, "population_size", self.population_size, 2))
-        n = self.population_size
-        put(self, "n_clusters", check_int(owner, "n_clusters", self.n_clusters, 1, n))
-        for name, low in (
-            ("max_iterations", 0),
-            ("n_replace", 1),
-            ("n_weight_iterations", 0),
-            ("kmeans_max_iter", 1),
-        ):
-            put(self, name, check_int(owner, name, getattr(self, name), low))
-        put(self, "slope", check_real(owner, "slope", self.slope, 0.0, low_open=True))
-        put(
-            self, "step_scale", check_real(owner, "step_scale", self.step_scale, 0.0, low_open=True)
-        )
-        for name in ("p_replace", "p_one_cluster", "p_one_centre", "p_two_centres"):
-            put(self, name, check_real(owner, name, getattr(self, name), 0.0, 1.0))
-        for name in (
-            "normalise_weights",
-            "step_relative_to_range",
-            "chaos_replacement",
-            "all_centre_weighting",
-        ):
-            put(self, name, check_bool(owner, name, getattr(self, name)))
-        for name, enum_type in (
-            ("replacement_map", ChaoticMap),
-            ("weight_map", ChaoticMap),
-            ("bound_handling", BoundHandling),
-            ("clustering", ClusteringBackend),
-        ):
-            put(self, name, coerce_enum(owner, name, enum_type, getattr(self, name)))
+class ModifiedBSO(ModifiedBSOConfig, PopulationOptimizer[ModifiedBSOState]):
+    """The paper's modified BSO; the settings are those of
+    :class:`~formation_bench.optimizers.modified_bso_kernels.ModifiedBSOConfig`."""
 
     # --- interface -------------------------------------------------------------------------------
 
@@ -213,24 +117,15 @@ class ModifiedBSO(PopulationOptimizer[ModifiedBSOState]):
     def result_info(self, state: ModifiedBSOState) -> dict[str, Any]:
         return {"chaotic_replacements": state.replacements}
 
-    def kernel_settings(self, bounds: Bounds, t_max: int) -> KernelSettings:
-        """The kernel arguments fixed for a solve over ``bounds`` planning ``t_max`` iterations."""
-        return KernelSettings(
+    def kernel_settings(self, bounds: Bounds, t_max: int) -> tuple:
+        """The packed :class:`KernelSettings` of a solve over ``bounds`` planning ``t_max``."""
+        return pack_settings(
+            KernelSettings,
+            self,
             t_max=int(t_max),
-            slope=self.slope,
-            n_clusters=self.n_clusters,
-            kmeans_max_iter=self.kmeans_max_iter,
-            all_centre=self.all_centre_weighting,
-            weight_map=int(self.weight_map),
-            n_weight_iterations=self.n_weight_iterations,
-            normalise=self.normalise_weights,
-            p_one_cluster=self.p_one_cluster,
-            p_one_centre=self.p_one_centre,
-            p_two_centres=self.p_two_centres,
             scale=step_scale(bounds, self.step_scale, self.step_relative_to_range),
             lower=np.array(bounds.lower),
             upper=np.array(bounds.upper),
-            bound_mode=int(self.bound_handling),
         )
 
     def init(
@@ -245,8 +140,9 @@ class ModifiedBSO(PopulationOptimizer[ModifiedBSOState]):
         x, f = initial_population(counter, bounds, rng, self.population_size, x0)
         n, d = x.shape
         randoms = no_randoms(self.uniforms_per_step(n, d), (n, d))
-        settings = self.kernel_settings(bounds, max_iterations)
-        return ModifiedBSOState(x, f, np.empty((0, d)), np.empty(0), settings, randoms)
+        packed = self.kernel_settings(bounds, max_iterations)
+        settings = KernelSettings(*packed)
+        return ModifiedBSOState(x, f, np.empty((0, d)), np.empty(0), settings, packed, randoms)
 
     def uniforms_per_step(self, n: int, d: int) -> int:
         """Length of one iteration's uniforms (the layout is in :meth:`step`)."""
@@ -287,7 +183,7 @@ class ModifiedBSO(PopulationOptimizer[ModifiedBSOState]):
         if self.clustering is ClusteringBackend.COMPILED:
             x, f, ideas = modified_bso_iteration(
                 state.x, state.f, state.ideas, state.idea_costs, u, normals, replace, candidates,
-                candidate_costs, iteration, *settings,
+                candidate_costs, iteration, state.packed,
             )  # fmt: skip
         else:
             x, f = state.population()
@@ -295,8 +191,45 @@ class ModifiedBSO(PopulationOptimizer[ModifiedBSOState]):
             centre_index, sizes = cluster_centres(labels, f, m)
             x, f, ideas = ideas_from_clusters(
                 x, f, labels, centre_index, sizes, u, normals, replace, candidates,
-                candidate_costs, iteration, *settings,
+                candidate_costs, iteration, state.packed,
             )  # fmt: skip
         # the replacement may have used the last evaluations: then no idea is evaluated
         costs = evaluate_prefix(counter, ideas)
-        return ModifiedBSOState(x, f, ideas, costs, settings, randoms, state.replacements + replace)
+        return ModifiedBSOState(
+            x, f, ideas, costs, settings, state.packed, randoms, state.replacements + replace
+        )
+
+
+register(
+    "modified-bso",
+    ModifiedBSO(),
+    "Modified BSO of the paper: chaotic centre replacement + chaotic all-centre weighting",
+)
+register(
+    "modified-bso-no-chaos-replacement",
+    ModifiedBSO(chaos_replacement=False),
+    "Modified BSO ablation: without the chaotic centre replacement (eqs. 6-7)",
+)
+register(
+    "modified-bso-no-all-centre",
+    ModifiedBSO(all_centre_weighting=False),
+    "Modified BSO ablation: Shi's idea selection instead of all-centre weighting (eqs. 8-9)",
+)
+register(
+    "modified-bso-no-modifications",
+    ModifiedBSO(chaos_replacement=False, all_centre_weighting=False),
+    "Modified BSO with both modifications off (Shi's BSO without random centre replacement)",
+)
+register(
+    "modified-bso-raw-weights",
+    ModifiedBSO(normalise_weights=False),
+    "Modified BSO with the raw, unnormalised chaotic weights printed in eq. (9)",
+)
+for _map in ChaoticMap:
+    if _map is not ChaoticMap.LOGISTIC:
+        register(
+            f"modified-bso-{_map.name.lower()}",
+            ModifiedBSO(replacement_map=_map, weight_map=_map),
+            f"Modified BSO with the {_map.name.lower()} map as f_rmap and f_hmap",
+        )
+del _map

@@ -8,62 +8,115 @@ and the new ideas are fused. Like :mod:`formation_bench.optimizers.bso_ops`, the
 pure: random numbers come in as arrays and inputs are never modified.
 """
 
+
 from __future__ import annotations
 
-from typing import NamedTuple
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
+from formation_bench.fields import Validated, kernel_settings_class, setting
+from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
     cluster_population,
     generate_ideas,
-    greedy_select,
     install_best,
     logsig_factor,
     random_centre,
 )
+from formation_bench.optimizers.chaos import ChaoticMap
+from formation_bench.optimizers.clustering import DEFAULT_MAX_ITER, ClusteringBackend
+from formation_bench.optimizers.original_bso_kernels import PER_SOLVE
+from formation_bench.optimizers.population import greedy_select
 
 
-class KernelSettings(NamedTuple):
-    """The kernels' arguments that stay fixed during a solve, in their order.
+@dataclass(frozen=True)
+class ModifiedBSOConfig(Validated):
+    """The settings of :class:`~formation_bench.optimizers.modified_bso.ModifiedBSO`, declared once.
 
-    Built once per solve (:meth:`ModifiedBSO.kernel_settings`) and passed as
-    ``*settings``: a tuple argument would go through numba's slow type
-    inference at every call, separate scalars through its fast path.
+    Declared next to the kernels that read them: the fields marked
+    ``kernel=True`` make :class:`KernelSettings`, which the kernels rebuild and
+    read by name (numba's cache is invalidated when this file changes).
     """
 
-    t_max: int
-    """Planned iterations: T_max of the logsig schedule."""
-    slope: float
-    """k, slope of the logsig schedule."""
-    n_clusters: int
-    """m, k-means clusters."""
-    kmeans_max_iter: int
-    """Cap on Lloyd iterations."""
-    all_centre: bool
-    """All-centre weighting (eqs. 8-9), else Shi's idea selection."""
-    weight_map: int
-    """f_hmap as a :class:`~formation_bench.optimizers.chaos.ChaoticMap` value."""
-    n_weight_iterations: int
-    """n_h."""
-    normalise: bool
-    """Normalise each idea's weights to sum to one."""
-    p_one_cluster: float
-    """Shi's p_6b."""
-    p_one_centre: float
-    """Shi's p_6biii."""
-    p_two_centres: float
-    """Shi's p_6c."""
-    scale: np.ndarray
-    """Per-coordinate multiplier of the eq. (10) step, shape (D,)."""
-    lower: np.ndarray
-    """Lower bounds (a private writable copy: numba compiles read-only arrays separately)."""
-    upper: np.ndarray
-    """Upper bounds (same reason)."""
-    bound_mode: int
-    """A :class:`~formation_bench.optimizers.bound_handling.BoundHandling` value."""
+    population_size: int = setting(30, low=2, doc="N, ideas per iteration")
+    n_clusters: int = setting(
+        5, low=1, high="population_size", kernel=True, doc="m, k-means clusters"
+    )
+    max_iterations: int = setting(
+        40, low=0, doc="T_max when the caller gives no budget; the default budget"
+    )
+    slope: float = setting(
+        20.0, low=0.0, low_open=True, kernel=True,
+        doc="k, slope of the logsig step-size schedule of eq. (10)",
+    )  # fmt: skip
+    p_replace: float = setting(
+        0.2, low=0.0, high=1.0,
+        doc="p_r, probability per iteration of a chaotic centre replacement",
+    )  # fmt: skip
+    n_replace: int = setting(10, low=1, doc="n_r, chaotic candidates per replacement")
+    n_weight_iterations: int = setting(
+        10, low=0, kernel=True,
+        doc="n_h, iterations of the weight map from the random seed ch(0)",
+    )  # fmt: skip
+    replacement_map: ChaoticMap = setting(
+        ChaoticMap.LOGISTIC, doc="f_rmap, chaotic map of the replacement candidates (eq. 6)"
+    )
+    weight_map: ChaoticMap = setting(
+        ChaoticMap.LOGISTIC, kernel=True, doc="f_hmap, chaotic map of the centre weights (eq. 8)"
+    )
+    normalise_weights: bool = setting(
+        True, kernel=True,
+        doc="Scale each idea's weights to sum to one (False: the raw weights printed in eq. 9)",
+    )  # fmt: skip
+    step_scale: float = setting(
+        0.1, low=0.0, low_open=True, doc="Multiplier of the N(0, 1) step of eq. (10)"
+    )
+    step_relative_to_range: bool = setting(
+        True, doc="Multiply step_scale by each coordinate's range upper - lower"
+    )
+    bound_handling: BoundHandling = setting(
+        BoundHandling.CLIP, kernel=True, doc="How ideas outside the bounds are brought back"
+    )
+    clustering: ClusteringBackend = setting(
+        ClusteringBackend.COMPILED, doc="k-means implementation"
+    )
+    kmeans_max_iter: int = setting(
+        DEFAULT_MAX_ITER, low=1, kernel=True, doc="Cap on Lloyd iterations per clustering"
+    )
+    p_one_cluster: float = setting(
+        0.8, low=0.0, high=1.0, kernel=True,
+        doc="Shi's p_6b: idea from one cluster rather than two (all-centre weighting off)",
+    )  # fmt: skip
+    p_one_centre: float = setting(
+        0.4, low=0.0, high=1.0, kernel=True,
+        doc="Shi's p_6biii: one-cluster idea is the centre, else a random member",
+    )  # fmt: skip
+    p_two_centres: float = setting(
+        0.5, low=0.0, high=1.0, kernel=True,
+        doc="Shi's p_6c: two-cluster idea mixes the centres, else random members",
+    )  # fmt: skip
+    chaos_replacement: bool = setting(
+        True, doc="Ablation switch: chaotic centre replacement (eqs. 6-7)"
+    )
+    all_centre_weighting: bool = setting(
+        True, kernel=True,
+        doc="Ablation switch: all-centre auxiliary solutions (eqs. 8-9), else Shi's selection",
+    )  # fmt: skip
+
+
+KernelSettings = kernel_settings_class(
+    "KernelSettings",
+    __name__,
+    ModifiedBSOConfig,
+    PER_SOLVE,
+    """What the kernels read, fixed during a solve: the kernel fields of
+    :class:`ModifiedBSOConfig` (enums as integers), then T_max, the per-coordinate multiplier of
+    the eq. (10) step and the bounds (private writable copies: numba compiles read-only arrays
+    separately).""",
+)
 
 
 @njit(cache=True)
@@ -79,36 +132,22 @@ def ideas_from_clusters(
     candidates: np.ndarray,
     candidate_costs: np.ndarray,
     iteration: int,
-    t_max: int,
-    slope: float,
-    n_clusters: int,
-    kmeans_max_iter: int,
-    all_centre: bool,
-    weight_map: int,
-    n_weight_iterations: int,
-    normalise: bool,
-    p_one_cluster: float,
-    p_one_centre: float,
-    p_two_centres: float,
-    scale: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    bound_mode: int,
+    packed: tuple,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One iteration after the clustering: ``(x, f, ideas)``.
 
     With ``replace``, the best of the evaluated chaotic ``candidates`` takes
     the place of a random centre (eq. 7); then the N ideas of eqs. (8)-(10)
-    (or Shi's selection when not ``all_centre``) are made from the clusters,
-    with the logsig factor of ``iteration`` out of ``t_max``. ``u`` is the
+    (or Shi's selection when all-centre weighting is off) are made from the
+    clusters, with the logsig factor of ``iteration`` out of T_max. ``u`` is the
     iteration's uniforms in the layout of :meth:`ModifiedBSO.step`;
     ``candidates`` and ``candidate_costs`` are read only with ``replace``.
-    The arguments from ``t_max`` on are the fields of :class:`KernelSettings`
-    (``kmeans_max_iter`` is unused here).
+    ``packed`` is :meth:`ModifiedBSO.kernel_settings`.
     """
+    s = KernelSettings(*packed)
     n, d = x.shape
-    m = n_clusters
-    width = m if all_centre else SHI_UNIFORMS_PER_IDEA
+    m = s.n_clusters
+    width = m if s.all_centre_weighting else SHI_UNIFORMS_PER_IDEA
     ideas_at = m + 2 + d
     rand_at = ideas_at + n * width
     resample_at = rand_at + n
@@ -122,21 +161,21 @@ def ideas_from_clusters(
         centre_index,
         sizes,
         u[ideas_at:rand_at].reshape(n, width),
-        all_centre,
-        weight_map,
-        n_weight_iterations,
-        normalise,
-        p_one_cluster,
-        p_one_centre,
-        p_two_centres,
-        logsig_factor(iteration, t_max, slope),
-        u[rand_at:resample_at],
-        normals,
-        scale,
-        lower,
-        upper,
-        bound_mode,
-        resample,
+        all_centre_weighting=s.all_centre_weighting,
+        weight_map=s.weight_map,
+        n_weight_iterations=s.n_weight_iterations,
+        normalise_weights=s.normalise_weights,
+        p_one_cluster=s.p_one_cluster,
+        p_one_centre=s.p_one_centre,
+        p_two_centres=s.p_two_centres,
+        factor=logsig_factor(iteration, t_max=s.t_max, slope=s.slope),
+        rand=u[rand_at:resample_at],
+        normals=normals,
+        scale=s.scale,
+        lower=s.lower,
+        upper=s.upper,
+        bound_handling=s.bound_handling,
+        resample_uniforms=resample,
     )
     return x, f, ideas
 
@@ -153,21 +192,7 @@ def modified_bso_iteration(
     candidates: np.ndarray,
     candidate_costs: np.ndarray,
     iteration: int,
-    t_max: int,
-    slope: float,
-    n_clusters: int,
-    kmeans_max_iter: int,
-    all_centre: bool,
-    weight_map: int,
-    n_weight_iterations: int,
-    normalise: bool,
-    p_one_cluster: float,
-    p_one_centre: float,
-    p_two_centres: float,
-    scale: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    bound_mode: int,
+    packed: tuple,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A whole iteration except the evaluations, in one call: ``(x, f, ideas)``.
 
@@ -176,11 +201,12 @@ def modified_bso_iteration(
     ``n_clusters`` entries of ``u``), then :func:`ideas_from_clusters`, whose
     arguments these are.
     """
+    s = KernelSettings(*packed)
     x, f, _ = greedy_select(x, f, ideas, idea_costs)
-    labels, centre_index, sizes = cluster_population(x, f, u[:n_clusters], kmeans_max_iter)
+    labels, centre_index, sizes = cluster_population(
+        x, f, u[: s.n_clusters], kmeans_max_iter=s.kmeans_max_iter
+    )
     return ideas_from_clusters(
         x, f, labels, centre_index, sizes, u, normals, replace, candidates, candidate_costs,
-        iteration, t_max, slope, n_clusters, kmeans_max_iter, all_centre, weight_map,
-        n_weight_iterations, normalise, p_one_cluster, p_one_centre, p_two_centres, scale, lower,
-        upper, bound_mode,
+        iteration, packed,
     )  # fmt: skip

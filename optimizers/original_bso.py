@@ -55,32 +55,17 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from formation_bench.optimizers.base import (
-    Bounds,
-    Budget,
-    EvaluationCounter,
-    PopulationOptimizer,
-    check_bool,
-    check_int,
-    check_real,
-    coerce_enum,
-)
-from formation_bench.optimizers.bound_handling import BoundHandling
-from formation_bench.optimizers.bso_ops import greedy_select
-from formation_bench.optimizers.clustering import DEFAULT_MAX_ITER
-from formation_bench.optimizers.original_bso_kernels import (
-    ShiSettings,
-    shi_ideas,
-    uniforms_per_iteration,
-)
+from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
+from formation_bench.optimizers.original_bso_kernels import ShiConfig, shi_ideas
 from formation_bench.optimizers.population import (
     RandomAhead,
     evaluate_prefix,
+    greedy_select,
     initial_population,
     iteration_randoms,
     no_randoms,
-    step_scale,
 )
+from formation_bench.optimizers.registry import register
 
 
 class BSOState(NamedTuple):
@@ -102,8 +87,11 @@ class BSOState(NamedTuple):
     """The last iteration's new ideas, each competing for its slot, (N, D); 0 rows at first."""
     new_costs: np.ndarray
     """Their costs (+inf for ideas not evaluated for lack of budget)."""
-    settings: ShiSettings
-    """The kernel arguments fixed for the solve (T_max, bounds, step scale, configuration)."""
+    settings: tuple
+    """The packed :class:`~formation_bench.optimizers.original_bso_kernels.ShiSettings` of the
+    solve (T_max, bounds, step scale, configuration)."""
+    t_max: int
+    """Planned iterations (also in ``settings``; read here by the Python side)."""
     randoms: RandomAhead
     """Random numbers drawn ahead for the next iterations."""
     replacements: int = 0
@@ -116,50 +104,11 @@ class BSOState(NamedTuple):
 
 
 @dataclass(frozen=True)
-class OriginalBSO(PopulationOptimizer[BSOState]):
-    """Shi's (2011) BSO: probabilities and slope as published; N and T_max for ~1300 evaluations."""
+class OriginalBSO(ShiConfig, PopulationOptimizer[BSOState]):
+    """Shi's (2011) BSO: probabilities and slope as published; N and T_max for ~1300 evaluations.
 
-    population_size: int = 30
-    """N, ideas per iteration (>= 2)."""
-    n_clusters: int = 5
-    """m, k-means clusters (1..N)."""
-    max_iterations: int = 40
-    """T_max when the caller gives no budget (>= 0); the default budget is N (T_max + 1)."""
-    slope: float = 20.0
-    """k, slope of the logsig step-size schedule (> 0)."""
-    p_replace: float = 0.2
-    """p_5a, probability per iteration of replacing a random centre by a random point ([0, 1])."""
-    p_one_cluster: float = 0.8
-    """p_6b, probability that an idea comes from one cluster rather than two ([0, 1])."""
-    p_one_centre: float = 0.4
-    """p_6biii, probability that a one-cluster idea starts from the centre ([0, 1])."""
-    p_two_centres: float = 0.5
-    """p_6c, probability that a two-cluster idea mixes the two centres ([0, 1])."""
-    step_scale: float = 1.0
-    """Multiplier of the N(0, 1) step (> 0); 1 as published."""
-    step_relative_to_range: bool = False
-    """Multiply ``step_scale`` by each coordinate's range (False as published)."""
-    bound_handling: BoundHandling = BoundHandling.CLIP
-    """How ideas outside the bounds are brought back (not specified by the paper)."""
-    kmeans_max_iter: int = DEFAULT_MAX_ITER
-    """Cap on Lloyd iterations per clustering (>= 1)."""
-
-    def __post_init__(self) -> None:
-        owner = type(self).__name__
-        put = object.__setattr__
-        put(self, "population_size", check_int(owner, "population_size", self.population_size, 2))
-        n = self.population_size
-        put(self, "n_clusters", check_int(owner, "n_clusters", self.n_clusters, 1, n))
-        put(self, "max_iterations", check_int(owner, "max_iterations", self.max_iterations, 0))
-        put(self, "kmeans_max_iter", check_int(owner, "kmeans_max_iter", self.kmeans_max_iter, 1))
-        for name in ("slope", "step_scale"):
-            put(self, name, check_real(owner, name, getattr(self, name), 0.0, low_open=True))
-        for name in ("p_replace", "p_one_cluster", "p_one_centre", "p_two_centres"):
-            put(self, name, check_real(owner, name, getattr(self, name), 0.0, 1.0))
-        relative = check_bool(owner, "step_relative_to_range", self.step_relative_to_range)
-        put(self, "step_relative_to_range", relative)
-        mode = coerce_enum(owner, "bound_handling", BoundHandling, self.bound_handling)
-        put(self, "bound_handling", mode)
+    The settings are those of :class:`~formation_bench.optimizers.original_bso_kernels.ShiConfig`.
+    """
 
     @property
     def default_budget(self) -> Budget:
@@ -188,30 +137,9 @@ class OriginalBSO(PopulationOptimizer[BSOState]):
             new_ideas=np.empty((0, d)),
             new_costs=np.empty(0),
             settings=self.shi_settings(bounds, max_iterations),
+            t_max=int(max_iterations),
             randoms=no_randoms(self.uniforms_per_step(n, d), (n, d)),
         )
-
-    def shi_settings(self, bounds: Bounds, t_max: int) -> ShiSettings:
-        """The kernel arguments fixed for a solve over ``bounds`` planning ``t_max`` iterations."""
-        return ShiSettings(
-            t_max=int(t_max),
-            slope=self.slope,
-            n_clusters=self.n_clusters,
-            kmeans_max_iter=self.kmeans_max_iter,
-            p_replace=self.p_replace,
-            p_one_cluster=self.p_one_cluster,
-            p_one_centre=self.p_one_centre,
-            p_two_centres=self.p_two_centres,
-            scale=step_scale(bounds, self.step_scale, self.step_relative_to_range),
-            lower=np.array(bounds.lower),
-            upper=np.array(bounds.upper),
-            bound_mode=int(self.bound_handling),
-        )
-
-    def uniforms_per_step(self, n: int, d: int) -> int:
-        """Length of one iteration's uniforms (layout: :func:`.original_bso_kernels.shi_step`)."""
-        resample = self.bound_handling is BoundHandling.RESAMPLE
-        return uniforms_per_iteration(n, d, self.n_clusters) + (n * d if resample else 0)
 
     def step(
         self,
@@ -222,10 +150,24 @@ class OriginalBSO(PopulationOptimizer[BSOState]):
         iteration: int,
     ) -> BSOState:
         settings = state.settings
-        randoms, u, normals = iteration_randoms(state.randoms, rng, iteration, settings.t_max)
+        randoms, u, normals = iteration_randoms(state.randoms, rng, iteration, state.t_max)
         x, f, ideas = shi_ideas(
-            state.x, state.f, state.new_ideas, state.new_costs, u, normals, iteration, *settings
+            state.x, state.f, state.new_ideas, state.new_costs, u, normals, iteration, settings
         )
         costs = evaluate_prefix(counter, ideas)
         replaced = bool(u[self.n_clusters] < self.p_replace)
-        return BSOState(x, f, ideas, costs, settings, randoms, state.replacements + replaced)
+        return BSOState(
+            x, f, ideas, costs, settings, state.t_max, randoms, state.replacements + replaced
+        )
+
+
+register(
+    "original-bso",
+    OriginalBSO(),
+    "Shi's (2011) BSO as published: k-means, random-point centre replacement, logsig N(0,1) step",
+)
+register(
+    "original-bso-range-step",
+    OriginalBSO(step_scale=0.1, step_relative_to_range=True),
+    "Shi's BSO with the modified BSO's step (0.1 x range instead of N(0, 1))",
+)

@@ -10,56 +10,107 @@ replacement and the new ideas are fused. The chaotic-local-search BSO
 arrays and inputs are never modified.
 """
 
+
 from __future__ import annotations
 
-from typing import NamedTuple
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
+from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.optimizers.base import Bounds
+from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
     cluster_population,
     generate_ideas,
-    greedy_select,
     logsig_factor,
     nonempty,
     pick_index,
 )
+from formation_bench.optimizers.clustering import DEFAULT_MAX_ITER
+from formation_bench.optimizers.population import greedy_select, step_scale
+
+PER_SOLVE = ("t_max", "scale", "lower", "upper")
+"""The kernel settings fixed per solve rather than per configuration, after the declared ones."""
 
 
-class ShiSettings(NamedTuple):
-    """The arguments of :func:`shi_ideas` that stay fixed during a solve, in their order.
+@dataclass(frozen=True)
+class ShiConfig(Validated):
+    """The settings of Shi's BSO, declared once for every optimiser built on :func:`shi_step`.
 
-    Built once per solve and passed as ``*settings``: a tuple argument would go
-    through numba's slow type inference at every call, separate scalars
-    through its fast path.
+    Declared next to the kernels that read them: the fields marked
+    ``kernel=True`` make :class:`ShiSettings`, which the kernels rebuild and
+    read by name (numba's cache is invalidated when this file changes).
     """
 
-    t_max: int
-    """Planned iterations: T_max of the logsig schedule."""
-    slope: float
-    """k, slope of the logsig schedule."""
-    n_clusters: int
-    """m, k-means clusters."""
-    kmeans_max_iter: int
-    """Cap on Lloyd iterations."""
-    p_replace: float
-    """p_5a."""
-    p_one_cluster: float
-    """p_6b."""
-    p_one_centre: float
-    """p_6biii."""
-    p_two_centres: float
-    """p_6c."""
-    scale: np.ndarray
-    """Per-coordinate multiplier of the N(0, 1) step, shape (D,)."""
-    lower: np.ndarray
-    """Lower bounds (a private writable copy: numba compiles read-only arrays separately)."""
-    upper: np.ndarray
-    """Upper bounds (same reason)."""
-    bound_mode: int
-    """A :class:`~formation_bench.optimizers.bound_handling.BoundHandling` value."""
+    population_size: int = setting(30, low=2, doc="N, ideas per iteration")
+    n_clusters: int = setting(
+        5, low=1, high="population_size", kernel=True, doc="m, k-means clusters"
+    )
+    max_iterations: int = setting(
+        40, low=0, doc="T_max when the caller gives no budget; the default budget is N (T_max + 1)"
+    )
+    slope: float = setting(
+        20.0, low=0.0, low_open=True, kernel=True, doc="k, slope of the logsig step-size schedule"
+    )
+    p_replace: float = setting(
+        0.2, low=0.0, high=1.0, kernel=True,
+        doc="p_5a, probability per iteration of replacing a random centre by a random point",
+    )  # fmt: skip
+    p_one_cluster: float = setting(
+        0.8, low=0.0, high=1.0, kernel=True,
+        doc="p_6b, probability that an idea comes from one cluster rather than two",
+    )  # fmt: skip
+    p_one_centre: float = setting(
+        0.4, low=0.0, high=1.0, kernel=True,
+        doc="p_6biii, probability that a one-cluster idea starts from the centre",
+    )  # fmt: skip
+    p_two_centres: float = setting(
+        0.5, low=0.0, high=1.0, kernel=True,
+        doc="p_6c, probability that a two-cluster idea mixes the two centres",
+    )  # fmt: skip
+    step_scale: float = setting(
+        1.0, low=0.0, low_open=True, doc="Multiplier of the N(0, 1) step; 1 as published"
+    )
+    step_relative_to_range: bool = setting(
+        False, doc="Multiply step_scale by each coordinate's range (False as published)"
+    )
+    bound_handling: BoundHandling = setting(
+        BoundHandling.CLIP, kernel=True,
+        doc="How ideas outside the bounds are brought back (not specified by the paper)",
+    )  # fmt: skip
+    kmeans_max_iter: int = setting(
+        DEFAULT_MAX_ITER, low=1, kernel=True, doc="Cap on Lloyd iterations per clustering"
+    )
+
+    def shi_settings(self, bounds: Bounds, t_max: int) -> tuple:
+        """The packed :class:`ShiSettings` of a solve over ``bounds`` planning ``t_max``."""
+        return pack_settings(
+            ShiSettings,
+            self,
+            t_max=int(t_max),
+            scale=step_scale(bounds, self.step_scale, self.step_relative_to_range),
+            lower=np.array(bounds.lower),
+            upper=np.array(bounds.upper),
+        )
+
+    def uniforms_per_step(self, n: int, d: int) -> int:
+        """Length of one iteration's uniforms (layout: :func:`shi_step`)."""
+        resample = self.bound_handling is BoundHandling.RESAMPLE
+        return uniforms_per_iteration(n, d, self.n_clusters) + (n * d if resample else 0)
+
+
+ShiSettings = kernel_settings_class(
+    "ShiSettings",
+    __name__,
+    ShiConfig,
+    PER_SOLVE,
+    """What :func:`shi_step` reads, fixed during a solve: the kernel fields of :class:`ShiConfig`
+    (enums as integers), then T_max, the per-coordinate step multiplier and the bounds (private
+    writable copies: numba compiles read-only arrays separately).""",
+)
 
 
 @njit(cache=True)
@@ -90,43 +141,26 @@ def uniforms_per_iteration(n: int, d: int, n_clusters: int) -> int:
 
 @njit(cache=True)
 def shi_step(
-    x: np.ndarray,
-    f: np.ndarray,
-    u: np.ndarray,
-    normals: np.ndarray,
-    iteration: int,
-    t_max: int,
-    slope: float,
-    n_clusters: int,
-    kmeans_max_iter: int,
-    p_replace: float,
-    p_one_cluster: float,
-    p_one_centre: float,
-    p_two_centres: float,
-    scale: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    bound_mode: int,
+    x: np.ndarray, f: np.ndarray, u: np.ndarray, normals: np.ndarray, iteration: int, s: ShiSettings
 ) -> np.ndarray:
     """Steps 2-6 of Shi's BSO on the ideas ``(x, f)``: the N new ideas.
 
-    The step factor is that of ``iteration`` out of ``t_max``. ``u`` holds, in
-    this order: the k-means seeds (m), the p_5a draw, the replaced cluster,
-    the random point (D), the idea-selection uniforms (N x 7, see
+    The step factor is that of ``iteration`` out of ``s.t_max``. ``u`` holds,
+    in this order: the k-means seeds (m), the p_5a draw, the replaced
+    cluster, the random point (D), the idea-selection uniforms (N x 7, see
     :data:`~formation_bench.optimizers.bso_ops.SHI_UNIFORMS_PER_IDEA`), ``rand`` (N) and, for
     RESAMPLE bound handling only, N x D resample values. ``normals`` is N x D.
-    The arguments from ``t_max`` on are the fields of :class:`ShiSettings`.
     """
     n, d = x.shape
-    m = n_clusters
+    m = s.n_clusters
     point_at = m + 2
     ideas_at = point_at + d
     rand_at = ideas_at + n * SHI_UNIFORMS_PER_IDEA
     end = rand_at + n
-    labels, centres, sizes = cluster_population(x, f, u[:m], kmeans_max_iter)
+    labels, centres, sizes = cluster_population(x, f, u[:m], kmeans_max_iter=s.kmeans_max_iter)
     sources = x
-    if u[m] < p_replace:
-        point = lower + u[point_at:ideas_at] * (upper - lower)
+    if u[m] < s.p_replace:
+        point = s.lower + u[point_at:ideas_at] * (s.upper - s.lower)
         sources, centres = replace_centre(x, centres, u[m + 1], point)
     resample_uniforms = u[end:].reshape(n, d) if u.shape[0] > end else normals
     return generate_ideas(
@@ -135,21 +169,22 @@ def shi_step(
         centres,
         sizes,
         u[ideas_at:rand_at].reshape(n, SHI_UNIFORMS_PER_IDEA),
-        False,
-        0,
-        0,
-        False,
-        p_one_cluster,
-        p_one_centre,
-        p_two_centres,
-        logsig_factor(iteration, t_max, slope),
-        u[rand_at:end],
-        normals,
-        scale,
-        lower,
-        upper,
-        bound_mode,
-        resample_uniforms,
+        # Shi's selection: the all-centre weighting and its settings are not used
+        all_centre_weighting=False,
+        weight_map=0,
+        n_weight_iterations=0,
+        normalise_weights=False,
+        p_one_cluster=s.p_one_cluster,
+        p_one_centre=s.p_one_centre,
+        p_two_centres=s.p_two_centres,
+        factor=logsig_factor(iteration, t_max=s.t_max, slope=s.slope),
+        rand=u[rand_at:end],
+        normals=normals,
+        scale=s.scale,
+        lower=s.lower,
+        upper=s.upper,
+        bound_handling=s.bound_handling,
+        resample_uniforms=resample_uniforms,
     )
 
 
@@ -162,29 +197,14 @@ def shi_ideas(
     u: np.ndarray,
     normals: np.ndarray,
     iteration: int,
-    t_max: int,
-    slope: float,
-    n_clusters: int,
-    kmeans_max_iter: int,
-    p_replace: float,
-    p_one_cluster: float,
-    p_one_centre: float,
-    p_two_centres: float,
-    scale: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    bound_mode: int,
+    packed: tuple,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Step 7 of the last iteration, then :func:`shi_step`, in one call: ``(x, f, ideas)``.
 
     ``(x, f)`` are the ideas after the slot-wise selection of ``new_ideas``
-    (costs ``new_costs``), ``ideas`` the N new ones made from them; the other
-    arguments are those of :func:`shi_step`. Fused so that an iteration costs
-    one kernel call.
+    (costs ``new_costs``), ``ideas`` the N new ones made from them;
+    ``packed`` is :meth:`ShiConfig.shi_settings`. Fused so that an iteration
+    costs one kernel call.
     """
     x, f, _ = greedy_select(x, f, new_ideas, new_costs)
-    ideas = shi_step(
-        x, f, u, normals, iteration, t_max, slope, n_clusters, kmeans_max_iter, p_replace,
-        p_one_cluster, p_one_centre, p_two_centres, scale, lower, upper, bound_mode,
-    )  # fmt: skip
-    return x, f, ideas
+    return x, f, shi_step(x, f, u, normals, iteration, ShiSettings(*packed))

@@ -14,7 +14,6 @@ import numpy as np
 from numba import njit
 
 from formation_bench.optimizers.base import Bounds, EvaluationCounter
-from formation_bench.optimizers.bso_ops import greedy_select
 
 
 def initial_population(
@@ -46,6 +45,28 @@ def evaluate_prefix(counter: EvaluationCounter, points: np.ndarray) -> np.ndarra
     if allowed > 0:
         costs[:allowed] = counter(points[:allowed])
     return costs
+
+
+@njit(cache=True)
+def greedy_select(
+    old_x: np.ndarray, old_f: np.ndarray, new_x: np.ndarray, new_f: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Slot-wise selection: ``new_x[i]`` replaces ``old_x[i]`` only if strictly better.
+
+    ``new_x`` may have fewer rows than ``old_x`` (a batch truncated by the
+    budget); the remaining slots keep their old members. Returns
+    ``(x, f, number of replaced slots)``. NaN costs never win a comparison;
+    the evaluation counter already maps them to ``+inf``.
+    """
+    x = old_x.copy()
+    f = old_f.copy()
+    improved = 0
+    for i in range(new_x.shape[0]):
+        if new_f[i] < old_f[i]:
+            x[i] = new_x[i]
+            f[i] = new_f[i]
+            improved += 1
+    return x, f, improved
 
 
 def evaluate_and_select(

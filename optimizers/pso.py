@@ -29,6 +29,7 @@ actually taken. Personal bests are updated only on strict improvement, so
 NaN/inf costs (mapped to +inf by the evaluation counter) never become a best.
 """
 
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -36,16 +37,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from formation_bench.optimizers.base import (
-    Bounds,
-    Budget,
-    EvaluationCounter,
-    PopulationOptimizer,
-    check_bool,
-    check_int,
-    check_real,
-    coerce_enum,
-)
+from formation_bench.fields import setting, validate_fields
+from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.chaos import ChaoticMap, apply_map
 from formation_bench.optimizers.population import evaluate_and_select, initial_population
@@ -55,6 +48,7 @@ from formation_bench.optimizers.pso_ops import (
     move_swarm,
     next_iterates,
 )
+from formation_bench.optimizers.registry import register
 
 
 class PSOState(NamedTuple):
@@ -90,48 +84,42 @@ class PSOState(NamedTuple):
 class PSO(PopulationOptimizer[PSOState]):
     """Global-best PSO; see the module docstring for the variants and their sources."""
 
-    population_size: int = 30
-    """N, particles (>= 2)."""
-    max_iterations: int = 40
-    """Iterations when the caller gives no budget (>= 0); the default budget is N (T + 1)."""
-    inertia_start: float = 0.9
-    """Inertia weight at the first iteration ([0, 2])."""
-    inertia_end: float = 0.4
-    """Inertia weight at the last planned iteration ([0, 2]); equal to start: constant."""
-    c1: float = 2.0
-    """Cognitive acceleration (towards the personal best) ([0, 5])."""
-    c2: float = 2.0
-    """Social acceleration (towards the global best) ([0, 5])."""
-    velocity_clamp: float = 0.2
-    """v_max as a fraction of each coordinate's range ((0, 2])."""
-    bound_handling: BoundHandling = BoundHandling.CLIP
-    """How positions outside the box are brought back: clip, reflect or resample."""
-    chaotic_coefficients: bool = False
-    """Use chaotic sequences of ``coefficient_map`` for r1 and r2 instead of uniforms."""
-    coefficient_map: ChaoticMap = ChaoticMap.LOGISTIC
-    """Chaotic map of r1 and r2."""
-    chaotic_inertia: bool = False
-    """Use Feng et al.'s chaotic inertia weight instead of the linear schedule."""
-    inertia_map: ChaoticMap = ChaoticMap.LOGISTIC
-    """Chaotic map of the inertia sequence."""
+    population_size: int = setting(30, low=2, doc="N, particles")
+    max_iterations: int = setting(
+        40, low=0,
+        doc="Iterations when the caller gives no budget; the default budget is N (T + 1)",
+    )  # fmt: skip
+    inertia_start: float = setting(
+        0.9, low=0.0, high=2.0, doc="Inertia weight at the first iteration"
+    )
+    inertia_end: float = setting(
+        0.4, low=0.0, high=2.0,
+        doc="Inertia weight at the last planned iteration; equal to start: constant",
+    )  # fmt: skip
+    c1: float = setting(
+        2.0, low=0.0, high=5.0, doc="Cognitive acceleration (towards the personal best)"
+    )
+    c2: float = setting(2.0, low=0.0, high=5.0, doc="Social acceleration (towards the global best)")
+    velocity_clamp: float = setting(
+        0.2, low=0.0, high=2.0, low_open=True, doc="v_max as a fraction of each coordinate's range"
+    )
+    bound_handling: BoundHandling = setting(
+        BoundHandling.CLIP,
+        doc="How positions outside the box are brought back: clip, reflect or resample",
+    )
+    chaotic_coefficients: bool = setting(
+        False, doc="Use chaotic sequences of coefficient_map for r1 and r2 instead of uniforms"
+    )
+    coefficient_map: ChaoticMap = setting(ChaoticMap.LOGISTIC, doc="Chaotic map of r1 and r2")
+    chaotic_inertia: bool = setting(
+        False, doc="Use Feng et al.'s chaotic inertia weight instead of the linear schedule"
+    )
+    inertia_map: ChaoticMap = setting(
+        ChaoticMap.LOGISTIC, doc="Chaotic map of the inertia sequence"
+    )
 
     def __post_init__(self) -> None:
-        owner = type(self).__name__
-        put = object.__setattr__
-        put(self, "population_size", check_int(owner, "population_size", self.population_size, 2))
-        put(self, "max_iterations", check_int(owner, "max_iterations", self.max_iterations, 0))
-        for name, high in (("inertia_start", 2.0), ("inertia_end", 2.0), ("c1", 5.0), ("c2", 5.0)):
-            put(self, name, check_real(owner, name, getattr(self, name), 0.0, high))
-        clamp = check_real(owner, "velocity_clamp", self.velocity_clamp, 0.0, 2.0, low_open=True)
-        put(self, "velocity_clamp", clamp)
-        for name in ("chaotic_coefficients", "chaotic_inertia"):
-            put(self, name, check_bool(owner, name, getattr(self, name)))
-        for name, enum_type in (
-            ("bound_handling", BoundHandling),
-            ("coefficient_map", ChaoticMap),
-            ("inertia_map", ChaoticMap),
-        ):
-            put(self, name, coerce_enum(owner, name, enum_type, getattr(self, name)))
+        validate_fields(self)
 
     @property
     def default_budget(self) -> Budget:
@@ -231,3 +219,30 @@ class PSO(PopulationOptimizer[PSOState]):
             coefficients=coefficients,
             inertia_z=inertia_z,
         )
+
+
+register(
+    "pso",
+    PSO(),
+    "Global-best PSO, inertia 0.9 -> 0.4, c1 = c2 = 2, velocity clamp 0.2 x range, clip",
+)
+register(
+    "pso-constriction",
+    PSO(inertia_start=0.7298, inertia_end=0.7298, c1=1.49618, c2=1.49618),
+    "Global-best PSO with Clerc-Kennedy constriction (chi = 0.7298, c1 = c2 = 1.49618)",
+)
+register(
+    "chaotic-pso",
+    PSO(chaotic_coefficients=True, chaotic_inertia=True),
+    "Chaotic PSO (after Alatas et al. 2009): logistic r1, r2 and chaotic inertia weight",
+)
+register(
+    "chaotic-pso-coefficients",
+    PSO(chaotic_coefficients=True),
+    "Chaotic PSO: logistic sequences for r1, r2 only (linear inertia 0.9 -> 0.4)",
+)
+register(
+    "chaotic-pso-inertia",
+    PSO(chaotic_inertia=True),
+    "Chaotic PSO: Feng et al.'s chaotic inertia weight only (uniform r1, r2)",
+)

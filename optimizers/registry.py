@@ -47,7 +47,7 @@ def register(name: str, optimizer: Optimizer, description: str) -> Optimizer:
     return optimizer
 
 
-def get_optimizer(name: str, **overrides: Any) -> Optimizer:
+def get_optimizer(name: str, /, **overrides: Any) -> Optimizer:
     """The optimiser registered as ``name``, with config fields replaced by ``overrides``.
 
     Unknown names and unknown fields raise ``KeyError``/``ValueError`` naming

@@ -2,40 +2,159 @@
 
 from __future__ import annotations
 
+import ast
 import inspect
+import pickle
+import textwrap
 
 import numpy as np
 import pytest
 
-from formation_bench.optimizers import Bounds, Budget, get_optimizer
-from formation_bench.optimizers.cls_bso import LocalSettings, cls_iteration
+from formation_bench.fields import kernel_field_names, kernel_value
+from formation_bench.optimizers import OPTIMIZERS, Bounds, Budget, get_optimizer
+from formation_bench.optimizers.cls_bso import LocalSearchConfig, LocalSettings, cls_iteration
 from formation_bench.optimizers.modified_bso_kernels import (
     KernelSettings,
+    ModifiedBSOConfig,
     ideas_from_clusters,
     modified_bso_iteration,
 )
-from formation_bench.optimizers.original_bso_kernels import ShiSettings, shi_ideas, shi_step
+from formation_bench.optimizers.original_bso_kernels import (
+    PER_SOLVE,
+    ShiConfig,
+    ShiSettings,
+    shi_ideas,
+    shi_step,
+)
 from formation_bench.optimizers.population import ROWS_AHEAD, iteration_randoms, no_randoms
 
+# (config, settings class, per-solve values, kernels reading it, the kernels' name for it)
+SETTINGS = [
+    (
+        ModifiedBSOConfig,
+        KernelSettings,
+        PER_SOLVE,
+        (modified_bso_iteration, ideas_from_clusters),
+        "s",
+    ),
+    (ShiConfig, ShiSettings, PER_SOLVE, (shi_step, cls_iteration), "s"),
+    (LocalSearchConfig, LocalSettings, (), (cls_iteration,), "local"),
+]
+IDS = [entry[1].__name__ for entry in SETTINGS]
 
-def trailing_parameters(kernel, count: int) -> tuple[str, ...]:
-    names = tuple(inspect.signature(kernel.py_func).parameters)
-    return names[len(names) - count :]
+
+def attributes_read(kernels, variable: str) -> set[str]:
+    """Attributes the kernels' source reads on ``variable`` (e.g. ``s.p_one_cluster``)."""
+    read = set()
+    for kernel in kernels:
+        tree = ast.parse(textwrap.dedent(inspect.getsource(kernel.py_func)))
+        read |= {
+            node.attr
+            for node in ast.walk(tree)
+            if isinstance(node, ast.Attribute)
+            and isinstance(node.value, ast.Name)
+            and node.value.id == variable
+        }
+    return read
 
 
 @pytest.mark.parametrize(
-    ("kernel", "fields"),
-    [
-        (modified_bso_iteration, KernelSettings._fields),
-        (ideas_from_clusters, KernelSettings._fields),
-        (shi_ideas, ShiSettings._fields),
-        (shi_step, ShiSettings._fields),
-        (cls_iteration, LocalSettings._fields + ShiSettings._fields),
-    ],
+    ("config", "settings", "per_solve", "kernels", "variable"), SETTINGS, ids=IDS
 )
-def test_settings_tuples_match_the_kernel_parameters(kernel, fields: tuple[str, ...]) -> None:
-    """The settings are passed as ``*settings``: their field order is the kernel's."""
-    assert trailing_parameters(kernel, len(fields)) == fields
+def test_every_field_declared_for_a_kernel_is_read_by_it(
+    config, settings, per_solve, kernels, variable
+) -> None:
+    """A field marked ``kernel=True`` that no kernel reads would be a setting with no effect."""
+    declared = set(kernel_field_names(config)) | set(per_solve)
+    assert declared == set(settings._fields)
+    assert declared <= attributes_read(kernels, variable)
+
+
+@pytest.mark.parametrize(
+    ("config", "settings", "per_solve", "kernels", "variable"), SETTINGS, ids=IDS
+)
+def test_kernels_read_only_declared_settings(
+    config, settings, per_solve, kernels, variable
+) -> None:
+    assert attributes_read(kernels, variable) <= set(settings._fields)
+
+
+def settings_passed_on(kernels, variable: str) -> tuple[list[str], list[tuple[str, str]]]:
+    """How the kernels hand settings to the operators they call.
+
+    Returns the fields passed positionally (``f(s.slope)``) and the
+    ``(keyword, field)`` pairs passed by keyword (``f(slope=s.slope)``).
+    """
+    positional, by_keyword = [], []
+
+    def field_of(node: ast.expr) -> str | None:
+        is_read = isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+        return node.attr if is_read and node.value.id == variable else None
+
+    for kernel in kernels:
+        tree = ast.parse(textwrap.dedent(inspect.getsource(kernel.py_func)))
+        for call in (node for node in ast.walk(tree) if isinstance(node, ast.Call)):
+            positional += [name for arg in call.args if (name := field_of(arg))]
+            by_keyword += [(kw.arg, name) for kw in call.keywords if (name := field_of(kw.value))]
+    return positional, by_keyword
+
+
+@pytest.mark.parametrize(
+    ("config", "settings", "per_solve", "kernels", "variable"), SETTINGS, ids=IDS
+)
+def test_settings_reach_the_operators_by_name(config, settings, per_solve, kernels, variable):
+    """A setting handed on travels as ``name=s.name``: two values cannot trade places."""
+    positional, by_keyword = settings_passed_on(kernels, variable)
+    assert positional == [], f"passed by position: {positional}"
+    assert by_keyword, "the kernels hand no settings on"
+    assert [(kw, field) for kw, field in by_keyword if kw != field] == []
+
+
+def test_the_kernels_take_one_settings_tuple() -> None:
+    """No positional settings lists left to keep in order by hand."""
+    for kernel in (modified_bso_iteration, ideas_from_clusters, shi_ideas, shi_step):
+        names = tuple(inspect.signature(kernel.py_func).parameters)
+        assert names[-1] in ("packed", "s")
+        assert not set(names) & set(KernelSettings._fields + ShiSettings._fields)
+    assert tuple(inspect.signature(cls_iteration.py_func).parameters)[-2:] == (
+        "shi_packed",
+        "local_packed",
+    )
+
+
+BSO_NAMES = [n for n in OPTIMIZERS if type(OPTIMIZERS[n].optimizer).__name__.endswith("BSO")]
+
+
+@pytest.mark.parametrize("name", BSO_NAMES)
+def test_packed_settings_hold_each_field_under_its_own_name(name: str) -> None:
+    optimizer = get_optimizer(name)
+    box = Bounds(np.full(3, -1.0), np.full(3, 2.0))
+    packs = []
+    if isinstance(optimizer, ModifiedBSOConfig):
+        packs.append((KernelSettings, optimizer.kernel_settings(box, 17)))
+    if isinstance(optimizer, ShiConfig):
+        packs.append((ShiSettings, optimizer.shi_settings(box, 17)))
+    if isinstance(optimizer, LocalSearchConfig):
+        from formation_bench.fields import pack_settings
+
+        packs.append((LocalSettings, pack_settings(LocalSettings, optimizer)))
+    assert packs
+    for settings_class, packed in packs:
+        settings = settings_class(*packed)
+        for field in settings._fields:
+            value = getattr(settings, field)
+            if field == "t_max":
+                assert value == 17
+            elif field in ("lower", "upper"):
+                np.testing.assert_array_equal(value, getattr(box, field))
+                assert value.flags.writeable
+            elif field != "scale":
+                assert value == kernel_value(getattr(optimizer, field))
+                assert type(value) is type(kernel_value(getattr(optimizer, field)))
+        # numba's cache pickles the generated class by module and qualified name
+        assert pickle.loads(pickle.dumps(settings_class)) is settings_class
+        restored = pickle.loads(pickle.dumps(settings))
+        assert type(restored) is settings_class and restored._fields == settings._fields
 
 
 def test_a_block_covers_the_planned_iterations_and_is_redrawn_when_used_up() -> None:

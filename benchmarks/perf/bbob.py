@@ -1,6 +1,6 @@
 """External validation: the population optimisers on BBOB functions, and mealpy's OriginalBSO.
 
-Run ``python -m formation_bench.benchmarks.perf.bbob`` (needs the ``bench`` extra: ``ioh`` and
+Run ``python -m formation_bench.benchmarks.perf.bbob`` (needs the ``peers`` extra: ``ioh`` and
 ``mealpy``). Every registered population optimiser, and mealpy's
 ``OriginalBSO`` (a published implementation of Shi's BSO, evaluating one
 point at a time), minimises a handful of BBOB functions from ``ioh`` in 10

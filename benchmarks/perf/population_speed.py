@@ -1,7 +1,7 @@
 """Speed of every population optimiser on the paper problem, and against mealpy's one-point BSO.
 
 Run ``python -m formation_bench.benchmarks.perf.population_speed`` (needs ``mealpy`` from the
-``bench`` extra for the last column). It records real per-UAV problems of the
+``peers`` extra for the last column). It records real per-UAV problems of the
 paper scenario (:func:`formation_bench.benchmarks.instants.record_instants`), then, for every
 registered population optimiser at its default budget with the loop's warm
 start:

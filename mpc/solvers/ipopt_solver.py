@@ -30,6 +30,7 @@ evaluations that compare the solution with the warm start. The Generator is
 not used.
 """
 
+
 from __future__ import annotations
 
 import enum
@@ -39,6 +40,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from formation_bench.fields import setting, validate_fields
 from formation_bench.mpc.model import rollout as numeric_rollout
 from formation_bench.mpc.solvers.gradient_common import (
     SolverCacheMixin,
@@ -54,10 +56,6 @@ from formation_bench.optimizers.base import (
     Budget,
     Optimizer,
     OptimizeResult,
-    check_bool,
-    check_int,
-    check_real,
-    coerce_enum,
 )
 
 if TYPE_CHECKING:
@@ -108,47 +106,48 @@ class _Memory:
 class IpoptOptimizer(SolverCacheMixin, Optimizer):
     """IPOPT (via CasADi ``nlpsol``) on the problem of eq. (14); derivative-based baseline."""
 
-    shooting: Shooting = Shooting.SINGLE
+    shooting: Shooting = setting(Shooting.SINGLE, doc="Transcription: single or multiple shooting")
     """Transcription: ``single`` or ``multiple`` shooting (default chosen by measurement,
     see docs/gradient-baselines.md)."""
-    max_iter: int = 100
-    """IPOPT's ``max_iter`` when the caller gives no budget (>= 0); the default budget.
-    A budget's ``max_iterations`` replaces it; its ``max_evaluations`` is ignored."""
-    tol: float = 1e-6
-    """IPOPT's ``tol`` (> 0; IPOPT's own default is 1e-8)."""
-    acceptable_tol: float = 1e-4
-    """IPOPT's ``acceptable_tol`` (> 0); a solve stopped there counts as a success."""
-    mu_init: float = 1e-4
-    """IPOPT's initial barrier parameter ``mu_init`` (> 0; IPOPT's default 0.1 suits a cold
-    start, a small one lets a warm start near the solution finish in a few iterations)."""
-    mu_strategy: str = "adaptive"
-    """IPOPT's ``mu_strategy``: ``adaptive`` or ``monotone`` (IPOPT's default)."""
-    warm_start_duals: bool = True
-    """Start the multipliers from this UAV's previous solve (``warm_start_init_point``)."""
-    bound_push: float = 1e-6
-    """IPOPT's ``bound_push``, ``bound_frac`` and their ``warm_start_`` forms (> 0): how far
-    a starting point on a bound is moved inside (IPOPT's default 1e-2 undoes a warm start
-    whose controls sit on a bound)."""
-    jit: bool = False
-    """Compile the CasADi functions to C (needs a C compiler at run time)."""
-    ipopt_options: tuple[tuple[str, str | int | float], ...] = ()
-    """Further IPOPT options as ``(name, value)`` pairs, e.g. ``(("mu_strategy", "adaptive"),)``;
-    they override the fields above."""
+    max_iter: int = setting(
+        100, low=0, doc="IPOPT's max_iter when the caller gives no budget; the default budget"
+    )
+    """A budget's ``max_iterations`` replaces it; its ``max_evaluations`` is ignored."""
+    tol: float = setting(
+        1e-6, low=0.0, low_open=True, doc="IPOPT's tol (IPOPT's own default is 1e-8)"
+    )
+    acceptable_tol: float = setting(
+        1e-4, low=0.0, low_open=True,
+        doc="IPOPT's acceptable_tol; a solve stopped there counts as a success",
+    )  # fmt: skip
+    mu_init: float = setting(
+        1e-4, low=0.0, low_open=True, doc="IPOPT's initial barrier parameter mu_init"
+    )
+    """IPOPT's default 0.1 suits a cold start, a small one lets a warm start near the solution
+    finish in a few iterations."""
+    mu_strategy: str = setting(
+        "adaptive", choices=("adaptive", "monotone"),
+        doc="IPOPT's mu_strategy: adaptive or monotone (IPOPT's default)",
+    )  # fmt: skip
+    warm_start_duals: bool = setting(
+        True, doc="Start the multipliers from this UAV's previous solve (warm_start_init_point)"
+    )
+    bound_push: float = setting(
+        1e-6, low=0.0, low_open=True,
+        doc="IPOPT's bound_push, bound_frac and their warm_start_ forms",
+    )  # fmt: skip
+    """How far a starting point on a bound is moved inside (IPOPT's default 1e-2 undoes a warm
+    start whose controls sit on a bound)."""
+    jit: bool = setting(False, doc="Compile the CasADi functions to C (needs a C compiler)")
+    ipopt_options: tuple[tuple[str, str | int | float], ...] = setting(
+        (), check=lambda owner, _name, value: _check_options(owner, value),
+        allowed="(name, value) pairs, string names, string or number values",
+        doc="Further IPOPT options as (name, value) pairs; they override the fields above",
+    )  # fmt: skip
+    """E.g. ``(("mu_strategy", "adaptive"),)``."""
 
     def __post_init__(self) -> None:
-        owner = type(self).__name__
-        put = object.__setattr__
-        put(self, "shooting", coerce_enum(owner, "shooting", Shooting, self.shooting))
-        put(self, "max_iter", check_int(owner, "max_iter", self.max_iter, 0))
-        for name in ("tol", "acceptable_tol", "mu_init", "bound_push"):
-            put(self, name, check_real(owner, name, getattr(self, name), 0.0, low_open=True))
-        if self.mu_strategy not in ("adaptive", "monotone"):
-            raise ValueError(
-                f"{owner}.mu_strategy must be adaptive or monotone, got {self.mu_strategy!r}"
-            )
-        put(self, "warm_start_duals", check_bool(owner, "warm_start_duals", self.warm_start_duals))
-        put(self, "jit", check_bool(owner, "jit", self.jit))
-        put(self, "ipopt_options", _check_options(owner, self.ipopt_options))
+        validate_fields(self)
 
     @property
     def default_budget(self) -> Budget:

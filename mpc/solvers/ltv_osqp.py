@@ -45,6 +45,7 @@ of the compiled cost (the warm start and the line-search points); OSQP's own
 iterations are in ``info``. The Generator is not used.
 """
 
+
 from __future__ import annotations
 
 import enum
@@ -54,6 +55,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from formation_bench.fields import setting, validate_fields
 from formation_bench.mpc.model import rollout as numeric_rollout
 from formation_bench.mpc.solvers.gradient_common import (
     SolverCacheMixin,
@@ -69,10 +71,6 @@ from formation_bench.optimizers.base import (
     Budget,
     Optimizer,
     OptimizeResult,
-    check_bool,
-    check_int,
-    check_real,
-    coerce_enum,
 )
 
 if TYPE_CHECKING:  # casadi, osqp and scipy.sparse are imported when a solver is first built
@@ -234,34 +232,34 @@ class _UavSolver:
 class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
     """Linear time-varying MPC: linearise about the shifted plan, solve the QP with OSQP."""
 
-    form: QPForm = QPForm.CONDENSED
-    """QP transcription: ``condensed`` (controls only) or ``sparse`` (states as variables too);
-    the default was chosen by measurement (docs/gradient-baselines.md)."""
-    sqp_iterations: int = 1
-    """Linearise-solve-line-search rounds per instant (>= 1) when the caller gives no
-    budget; a budget's ``max_iterations`` replaces it (its ``max_evaluations`` is ignored)."""
-    eps_abs: float = 1e-4
-    """OSQP's absolute tolerance (> 0; OSQP's default is 1e-3)."""
-    eps_rel: float = 1e-4
-    """OSQP's relative tolerance (> 0; OSQP's default is 1e-3)."""
-    max_iter: int = 20_000
-    """OSQP's iteration limit per QP (>= 1). OSQP's default 4000 is too few for some
-    start-up instants of the paper scenario (see docs/gradient-baselines.md)."""
-    polishing: bool | None = None
-    """OSQP's solution polishing (an active-set refinement after ADMM); None = on for the
-    sparse form, off for the condensed one (where OSQP prints a line whenever no bound is
-    active, even with ``verbose`` off)."""
+    form: QPForm = setting(
+        QPForm.CONDENSED,
+        doc="QP transcription: condensed (controls only) or sparse (states as variables too)",
+    )
+    """The default was chosen by measurement (docs/gradient-baselines.md)."""
+    sqp_iterations: int = setting(
+        1, low=1,
+        doc="Linearise-solve-line-search rounds per instant when the caller gives no budget",
+    )  # fmt: skip
+    """A budget's ``max_iterations`` replaces it (its ``max_evaluations`` is ignored)."""
+    eps_abs: float = setting(
+        1e-4, low=0.0, low_open=True, doc="OSQP's absolute tolerance (OSQP's default is 1e-3)"
+    )
+    eps_rel: float = setting(
+        1e-4, low=0.0, low_open=True, doc="OSQP's relative tolerance (OSQP's default is 1e-3)"
+    )
+    max_iter: int = setting(20_000, low=1, doc="OSQP's iteration limit per QP")
+    """OSQP's default 4000 is too few for some start-up instants of the paper scenario (see
+    docs/gradient-baselines.md)."""
+    polishing: bool | None = setting(
+        None, kind=bool, optional=True,
+        doc="OSQP's solution polishing; None = on for the sparse form, off for the condensed one",
+    )  # fmt: skip
+    """Polishing is an active-set refinement after ADMM; off for the condensed form, where OSQP
+    prints a line whenever no bound is active, even with ``verbose`` off."""
 
     def __post_init__(self) -> None:
-        owner = type(self).__name__
-        put = object.__setattr__
-        put(self, "form", coerce_enum(owner, "form", QPForm, self.form))
-        put(self, "sqp_iterations", check_int(owner, "sqp_iterations", self.sqp_iterations, 1))
-        put(self, "max_iter", check_int(owner, "max_iter", self.max_iter, 1))
-        for name in ("eps_abs", "eps_rel"):
-            put(self, name, check_real(owner, name, getattr(self, name), 0.0, low_open=True))
-        if self.polishing is not None:
-            put(self, "polishing", check_bool(owner, "polishing", self.polishing))
+        validate_fields(self)
 
     @property
     def default_budget(self) -> Budget:
