@@ -16,6 +16,8 @@ from typing import Any, NoReturn
 
 import pandas as pd
 
+import formation_bench
+from formation_bench import plugins
 from formation_bench.benchmarks.analysis.paper import (
     comparison_rows,
     format_seed_table,
@@ -33,6 +35,17 @@ from formation_bench.mpc.scenario import SCENARIOS, Scenario, get_scenario
 from formation_bench.optimizers import OPTIMIZERS, Optimizer, get_optimizer
 
 DEFAULT_OPTIMIZER = "modified-bso"
+
+EXAMPLES = """\
+examples:
+  formation-bench reproduce                      the paper scenario, metrics beside the paper's
+  formation-bench list                           registered optimizers and scenarios
+  formation-bench run --optimizer pso --no-trigger --seed 3 --out out/pso
+  formation-bench run --optimizer modified-bso --set scenario.reference=s-curve --out out/s
+  formation-bench sweep paper --out results/paper --jobs 2
+  formation-bench report results/paper
+  formation-bench --plugin my_search.py run --optimizer my-random-search --out out/mine
+"""
 
 
 class UsageError(Exception):
@@ -155,14 +168,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     suffix = "trigger" if args.trigger else "no_trigger"
     write_metrics(out / "metrics.json", outcome.metrics)
     write_trace(out / "trace.parquet", outcome.frame)
-    write_figures(outcome, out, suffix, (5, 6) if args.trigger else (3, 4))
-    write_trigger_figure(outcome, out, f"fig7_solve_instants_{suffix}.png")
+    if args.figures:
+        write_figures(outcome, out, suffix, (5, 6) if args.trigger else (3, 4))
+        write_trigger_figure(outcome, out, f"fig7_solve_instants_{suffix}.png")
     print(_summary(outcome.metrics))
-    print(f"wrote {out}/metrics.json, trace.parquet and figures")
+    print(f"wrote {out}/metrics.json, trace.parquet{' and figures' if args.figures else ''}")
     return 0
 
 
-def reproduce_one(seed: int, out: Path) -> list[dict[str, Any]]:
+def reproduce_one(seed: int, out: Path, *, figures: bool = True) -> list[dict[str, Any]]:
     """Both paper runs (without, then with trigger) for one seed; writes outputs to ``out``."""
     scenario = get_scenario("paper")
     optimizer = get_optimizer(DEFAULT_OPTIMIZER)
@@ -176,9 +190,10 @@ def reproduce_one(seed: int, out: Path) -> list[dict[str, Any]]:
     metrics = [o.metrics for o in outcomes]
     write_metrics(out / "metrics.json", metrics)
     write_trace(out / "trace.parquet", pd.concat([o.frame for o in outcomes], ignore_index=True))
-    write_figures(outcomes[0], out, "no_trigger", (3, 4))
-    write_figures(outcomes[1], out, "trigger", (5, 6))
-    write_trigger_figure(outcomes[1], out, "fig7_solve_instants.png")
+    if figures:
+        write_figures(outcomes[0], out, "no_trigger", (3, 4))
+        write_figures(outcomes[1], out, "trigger", (5, 6))
+        write_trigger_figure(outcomes[1], out, "fig7_solve_instants.png")
     return metrics
 
 
@@ -188,7 +203,10 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     seeds = list(dict.fromkeys(args.seeds))
     settle = get_scenario("paper").settle_time_s
     runs = {
-        seed: reproduce_one(seed, out if len(seeds) == 1 else out / f"seed{seed}") for seed in seeds
+        seed: reproduce_one(
+            seed, out if len(seeds) == 1 else out / f"seed{seed}", figures=args.figures
+        )
+        for seed in seeds
     }
     print()
     print(
@@ -212,7 +230,24 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="formation-bench", description=__doc__.splitlines()[0] if __doc__ else "")
+    parser = _Parser(
+        prog="formation-bench",
+        description="Optimisers inside a distributed MPC of UAV formations: reproduce the "
+        "paper, run closed loops, sweep suites and report their statistics.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--version", action="version", version=f"formation-bench {formation_bench.__version__}"
+    )
+    parser.add_argument(
+        "--plugin",
+        action="append",
+        default=[],
+        metavar="MODULE_OR_FILE",
+        help="import a module (dotted name) or a .py file that registers optimizers or "
+        "scenarios before the command runs (repeatable; sweep workers load it too)",
+    )
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     reproduce = sub.add_parser(
@@ -230,6 +265,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=[0],
         help="run seed(s), integers >= 0 (default 0); several seeds write DIR/seedN/ each "
         "and a table of every figure over the seeds",
+    )
+    reproduce.add_argument(
+        "--figures",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="draw the figures (default); --no-figures writes metrics and trace only",
     )
     reproduce.set_defaults(func=cmd_reproduce)
 
@@ -253,6 +294,12 @@ def build_parser() -> argparse.ArgumentParser:
         "prefix with scenario. or optimizer. if ambiguous",
     )
     run.add_argument("--out", required=True, help="output folder")
+    run.add_argument(
+        "--figures",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="draw the figures (default); --no-figures writes metrics and trace only",
+    )
     run.set_defaults(func=cmd_run)
 
     listing = sub.add_parser("list", help="registered optimizers and scenarios")
@@ -278,10 +325,14 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        plugins.load_plugins(args.plugin)
         return args.func(args)
-    except UsageError as err:
+    except (UsageError, plugins.PluginError) as err:
         print(f"formation-bench {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"formation-bench {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -9,7 +9,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from formation_bench.benchmarks.analysis import figures
 from formation_bench.benchmarks.outputs import trace_frame
 from formation_bench.mpc.cost import batch_cost
 from formation_bench.mpc.loop import Trace, simulate
@@ -58,6 +57,8 @@ def write_figures(
     outcome: RunOutcome, out_dir: Path, suffix: str, fig_numbers: tuple[int, int]
 ) -> list[Path]:
     """Trajectory and states figures of one run; returns the paths written."""
+    from formation_bench.benchmarks.analysis import figures  # matplotlib only when drawing
+
     scenario = outcome.trace.scenario
     desired = scenario.desired_distances()
     desired_by_name = {name: float(desired[i, j]) for name, i, j in pair_names(scenario.n_uav)}
@@ -72,6 +73,8 @@ def write_figures(
 
 def write_trigger_figure(outcome: RunOutcome, out_dir: Path, name: str) -> Path:
     """Fig. 7 for one run."""
+    from formation_bench.benchmarks.analysis import figures
+
     path = out_dir / name
     figures.save(figures.trigger_figure(outcome.frame), path)
     return path

@@ -11,12 +11,12 @@ import os
 import sys
 import time
 
-from formation_bench.benchmarks.analysis.report import ReportError, make_report
 from formation_bench.benchmarks.experiments.store import StoreError
 from formation_bench.benchmarks.experiments.suite import SuiteError, load_suite, shipped_suites
 from formation_bench.benchmarks.experiments.sweep import DEFAULT_JOBS, SweepError, plan, run_sweep
+from formation_bench.plugins import PluginError
 
-USAGE_ERRORS = (SuiteError, SweepError, StoreError, ReportError)
+USAGE_ERRORS: tuple[type[Exception], ...] = (SuiteError, SweepError, StoreError, PluginError)
 
 
 def _jobs(text: str) -> int:
@@ -68,14 +68,21 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    # the statistics and plotting libraries are imported only by the command that uses them
+    from formation_bench.benchmarks.analysis.report import ReportError, make_report
+
     start = time.perf_counter()
-    _, headline, folder = make_report(
-        args.results,
-        args.out,
-        baseline=args.baseline,
-        compare=args.compare,
-        figures=args.figures,
-    )
+    try:
+        _, headline, folder = make_report(
+            args.results,
+            args.out,
+            baseline=args.baseline,
+            compare=args.compare,
+            figures=args.figures,
+        )
+    except ReportError as err:
+        print(f"formation-bench report: error: {err}", file=sys.stderr)
+        return 2
     print(headline)
     print(
         f"wrote {folder}/report.md, summary.csv, wilcoxon.csv, friedman.csv, ranks.csv, "

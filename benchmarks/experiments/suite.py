@@ -34,6 +34,7 @@ import numpy as np
 
 from formation_bench.mpc.scenario import SCENARIOS, Scenario, get_scenario
 from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
+from formation_bench.plugins import loaded_plugins
 
 SUITES_DIR = Path(__file__).parent / "suites"
 """Where the shipped suites live."""
@@ -150,6 +151,9 @@ class RunSpec:
     """SHA-256 of the fully resolved optimiser, scenario and budget: a stored result whose
     hash differs was produced by a different configuration (changed code defaults) and is
     redone."""
+    plugins: tuple[str, ...] = ()
+    """Plugin modules or files the worker loads before building the run (those the command
+    loaded with ``--plugin``); not part of the identity."""
 
     @property
     def budget(self) -> Budget | None:
@@ -311,6 +315,7 @@ class Suite:
                                     seed=seed,
                                     trace=self.trace,
                                     config_hash=config_hash,
+                                    plugins=loaded_plugins(),
                                 )
                             )
         return runs

@@ -44,6 +44,7 @@ from formation_bench.benchmarks.runner import warm_up_kernels
 from formation_bench.mpc.loop import simulate
 from formation_bench.mpc.metrics import compute_metrics
 from formation_bench.mpc.trigger import TRIGGER_CONDITIONS
+from formation_bench.plugins import load_plugins
 
 DEFAULT_JOBS = 2
 SCHEDULER_TIMEOUT_S = 20
@@ -100,6 +101,8 @@ def execute_run(spec: RunSpec) -> RunResult:
     start = time.perf_counter()
     try:
         with threadpool_limits(limits=1):
+            # a fresh worker process knows only the built-in and entry-point optimisers
+            load_plugins(spec.plugins)
             scenario, optimizer = spec.build()
             warm_up_kernels()
             trace = simulate(
@@ -216,7 +219,8 @@ def run_on_dask(specs: list[RunSpec], address: str) -> Iterator[RunResult]:
             execute_run, specs, key=[f"formation-bench-run-{s.key}" for s in specs], pure=False
         )
         spec_of = {f.key: s for f, s in zip(futures, specs, strict=True)}
-        for future in as_completed(futures):
+        # the client is not the default one, so as_completed must be given its loop
+        for future in as_completed(futures, loop=client.loop):
             try:
                 result = future.result()
             except Exception:  # the worker died (KilledWorker) or the task was lost
