@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import ast
 import dataclasses
+import os
 import sys
 import time
 from pathlib import Path
@@ -23,6 +24,7 @@ from formation_bench.benchmarks.analysis.paper import (
     format_seed_table,
     format_table,
 )
+from formation_bench.benchmarks.experiments.suite import effective_overrides, jsonable, short_value
 from formation_bench.benchmarks.outputs import write_metrics, write_text, write_trace
 from formation_bench.benchmarks.runner import (
     RunOutcome,
@@ -32,7 +34,7 @@ from formation_bench.benchmarks.runner import (
 )
 from formation_bench.mpc.reference import REFERENCE_PATHS
 from formation_bench.mpc.scenario import SCENARIOS, Scenario, get_scenario
-from formation_bench.optimizers import OPTIMIZERS, Optimizer, get_optimizer
+from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
 
 DEFAULT_OPTIMIZER = "modified-bso"
 
@@ -146,6 +148,8 @@ def _summary(metrics: dict[str, Any]) -> str:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
+    if args.fields is not None:
+        return _list_fields(args.fields)
     print("optimizers:")
     for name in sorted(OPTIMIZERS):
         print(f"  {name:<36} {OPTIMIZERS[name].description}")
@@ -159,11 +163,72 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def _list_fields(name: str) -> int:
+    """The settable fields of a registered optimiser or scenario, as ``--set`` takes them."""
+    from formation_bench.fields import describe_fields
+
+    if name in OPTIMIZERS:
+        kind, obj = "optimizer", OPTIMIZERS[name].optimizer
+    elif name in SCENARIOS:
+        kind, obj = "scenario", SCENARIOS[name]
+    else:
+        allowed = ", ".join([*sorted(OPTIMIZERS), *sorted(SCENARIOS)])
+        raise UsageError(f"--fields: unknown optimizer or scenario {name!r}; allowed: {allowed}")
+    print(f"{kind} {name} ({type(obj).__name__}); set with --set {kind}.FIELD=VALUE")
+    for info in describe_fields(obj):
+        print(f"  {info.name} = {_shown(info.value)}  ({info.type}; {info.allowed})")
+        print(f"      {info.doc}")
+    return 0
+
+
+def _shown(value: Any) -> str:
+    import enum
+
+    if isinstance(value, enum.Enum):
+        return value.name.lower() if not isinstance(value.value, str) else value.value
+    return repr(value)
+
+
+def _budget(args: argparse.Namespace) -> Budget | None:
+    if args.max_evaluations is None and args.max_iterations is None:
+        return None
+    try:
+        return Budget(args.max_evaluations, args.max_iterations)
+    except ValueError as err:
+        raise UsageError(_message(err)) from None
+
+
+def labelled(name: str, default: Any, configured: Any) -> tuple[str, dict[str, Any]]:
+    """``name``, or ``name[field=value,...]`` when fields differ from the registered ones."""
+    changed = effective_overrides(default, configured)
+    changed.pop("name", None)
+    if not changed:
+        return name, changed
+    return name + "[" + ",".join(f"{k}={short_value(v)}" for k, v in changed.items()) + "]", changed
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     scenario, optimizer = _build(args)
+    budget = _budget(args)
     out = Path(args.out)
+    optimizer_label, optimizer_overrides = labelled(
+        args.optimizer, get_optimizer(args.optimizer), optimizer
+    )
+    scenario_label, scenario_overrides = labelled(
+        args.scenario, get_scenario(args.scenario), scenario
+    )
+    # an overridden scenario is named by what it is in the metrics, the trace and the titles
+    scenario = scenario.with_overrides(name=scenario_label)
     outcome = run_closed_loop(
-        scenario, args.optimizer, optimizer, trigger=args.trigger, seed=args.seed
+        scenario, optimizer_label, optimizer, trigger=args.trigger, seed=args.seed, budget=budget
+    )
+    outcome.metrics.update(
+        optimizer_name=args.optimizer,
+        optimizer_overrides=jsonable(optimizer_overrides),
+        scenario_name=args.scenario,
+        scenario_overrides=jsonable(scenario_overrides),
+        budget_max_evaluations=None if budget is None else budget.max_evaluations,
+        budget_max_iterations=None if budget is None else budget.max_iterations,
     )
     suffix = "trigger" if args.trigger else "no_trigger"
     write_metrics(out / "metrics.json", outcome.metrics)
@@ -293,6 +358,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="override a scenario or optimizer field (repeatable); "
         "prefix with scenario. or optimizer. if ambiguous",
     )
+    run.add_argument(
+        "--max-evaluations",
+        type=_positive,
+        metavar="N",
+        help="per-solve evaluation budget (default: the optimizer's own budget)",
+    )
+    run.add_argument(
+        "--max-iterations",
+        type=_non_negative,
+        metavar="N",
+        help="per-solve iteration budget (default: the optimizer's own budget)",
+    )
     run.add_argument("--out", required=True, help="output folder")
     run.add_argument(
         "--figures",
@@ -303,6 +380,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.set_defaults(func=cmd_run)
 
     listing = sub.add_parser("list", help="registered optimizers and scenarios")
+    listing.add_argument(
+        "--fields",
+        metavar="NAME",
+        help="the settable fields of one optimizer or scenario: value, allowed values, meaning",
+    )
     listing.set_defaults(func=cmd_list)
 
     from formation_bench.benchmarks.sweep_commands import add_sweep_commands  # sweep, report
@@ -311,13 +393,35 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _integer(text: str, low: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {value}")
+    return value
+
+
+def _positive(text: str) -> int:
+    return _integer(text, 1)
+
+
+def _non_negative(text: str) -> int:
+    return _integer(text, 0)
+
+
+MAX_SEED = 2**128 - 1
+"""Largest seed: a sweep run's SeedSequence entropy is 128 bits."""
+
+
 def _seed(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {value}")
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be an integer in [0, 2**128 - 1], got {value}")
     return value
 
 
@@ -333,6 +437,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"formation-bench {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # output piped into e.g. `head`, which stopped reading
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 if __name__ == "__main__":

@@ -43,7 +43,9 @@ def trace_frame(trace: Trace) -> pd.DataFrame:
             "optimizer": trace.optimizer,
             "scenario": trace.scenario.name,
             "trigger": trace.trigger,
-            "seed": trace.seed,
+            # a 128-bit seed (a sweep run's entropy, repeated with run --seed) does not fit an
+            # int64 column: such a seed is stored as its decimal string
+            "seed": trace.seed if trace.seed < 2**63 else str(trace.seed),
             "step": step,
             "time_s": np.repeat(trace.times, n_uav),
             "uav": uav,

@@ -15,7 +15,7 @@ from formation_bench.mpc.loop import Trace, simulate
 from formation_bench.mpc.metrics import compute_metrics, pair_names
 from formation_bench.mpc.model import rollout
 from formation_bench.mpc.scenario import Scenario
-from formation_bench.optimizers.base import Optimizer
+from formation_bench.optimizers.base import Budget, Optimizer
 
 
 @dataclass(frozen=True)
@@ -45,11 +45,24 @@ def warm_up_kernels() -> None:
 
 
 def run_closed_loop(
-    scenario: Scenario, optimizer_name: str, optimizer: Optimizer, *, trigger: bool, seed: int
+    scenario: Scenario,
+    optimizer_name: str,
+    optimizer: Optimizer,
+    *,
+    trigger: bool,
+    seed: int,
+    budget: Budget | None = None,
 ) -> RunOutcome:
-    """Simulate one run and compute its metrics."""
+    """Simulate one run and compute its metrics (``budget`` None: the optimiser's own)."""
     warm_up_kernels()
-    trace = simulate(scenario, optimizer, trigger=trigger, seed=seed, optimizer_name=optimizer_name)
+    trace = simulate(
+        scenario,
+        optimizer,
+        trigger=trigger,
+        seed=seed,
+        optimizer_name=optimizer_name,
+        budget=budget,
+    )
     return RunOutcome(trace, compute_metrics(trace), trace_frame(trace))
 
 

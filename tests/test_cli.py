@@ -155,3 +155,64 @@ def test_parse_value():
     assert parse_value("true") is True and parse_value("False") is False
     assert parse_value("(-5, 5)") == (-5, 5)
     assert parse_value("tent") == "tent"
+
+
+def test_a_sweep_run_is_repeated_exactly_by_run_with_its_entropy_and_budget(tmp_path):
+    """The command docs/benchmarks.md gives for repeating a sweep run: seeds of 128 bits."""
+    from formation_bench.benchmarks.experiments.store import load_results
+    from formation_bench.benchmarks.experiments.suite import parse_suite
+    from formation_bench.benchmarks.experiments.sweep import run_sweep
+
+    text = (
+        'name = "repeat"\nseeds = 1\ntriggers = [true]\nbudgets = [{ max_evaluations = 150 }]\n'
+        '[[optimizers]]\nname = "modified-bso"\noverrides = { population_size = 12 }\n'
+        '[[scenarios]]\nname = "paper"\noverrides = { n_steps = 12, settle_time_s = 1.0 }\n'
+    )
+    suite = parse_suite(text, tmp_path / "repeat.toml")
+    run_sweep(suite, tmp_path / "store", jobs=1, progress=False, log=lambda _: None)
+    row = load_results(tmp_path / "store").iloc[0]
+    entropy = int(row["seed_entropy"])
+    assert entropy >= 2**63  # the case that once broke writing the trace
+    code = main(
+        ["run", "--optimizer", "modified-bso", "--set", "optimizer.population_size=12",
+         "--set", "scenario.n_steps=12", "--set", "scenario.settle_time_s=1.0",
+         "--seed", str(entropy), "--max-evaluations", "150", "--no-figures",
+         "--out", str(tmp_path / "run")]
+    )  # fmt: skip
+    assert code == 0
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["scenario"] == "paper[n_steps=12,settle_time_s=1.0]"
+    assert metrics["scenario_overrides"] == {"n_steps": 12, "settle_time_s": 1.0}
+    assert metrics["optimizer"] == "modified-bso[population_size=12]"
+    assert metrics["budget_max_evaluations"] == 150
+    assert metrics["tracking_error_max_m"] == row["tracking_error_max_m"]
+    assert metrics["closed_loop_cost"] == row["closed_loop_cost"]
+    assert metrics["nfev_total"] == row["nfev_total"]
+    for name, value in metrics["distance_error_max_m"].items():
+        assert value == row[f"distance_error_max_m_{name}"]
+    assert (tmp_path / "run" / "trace.parquet").is_file()
+    assert not list((tmp_path / "run").glob("*.png"))
+
+
+def test_list_fields_shows_values_ranges_and_docs(capsys):
+    assert main(["list", "--fields", "modified-bso-tent"]) == 0
+    out = capsys.readouterr().out
+    assert "weight_map = tent" in out and "n_clusters = 5" in out
+    assert "integer in [1, population_size]" in out and "m, k-means clusters" in out
+    assert main(["list", "--fields", "paper"]) == 0
+    assert "settle_time_s = 10.0" in capsys.readouterr().out
+    assert main(["list", "--fields", "nope"]) == 2
+    assert "unknown optimizer or scenario 'nope'" in capsys.readouterr().err
+
+
+def test_version_and_help(capsys):
+    import formation_bench
+
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"formation-bench {formation_bench.__version__}"
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    text = capsys.readouterr().out
+    assert "examples:" in text and "--plugin" in text and "``" not in text

@@ -111,37 +111,78 @@ def test_a_sweep_run_is_simulate_with_the_identity_entropy():
 
 
 @pytest.mark.parametrize(
-    ("text", "line", "needles"),
+    ("text", "where", "needles"),
     [
-        (GOOD.replace('name = "modified-bso"\n', 'name = "psoo"\n'), 7, ["unknown optimizer 'psoo'",
-         "modified-bso-no-modifications"]),
-        (GOOD.replace("max_iterations = 2", "max_iteration = 2"), 8, ["max_iteration",
-         "population_size"]),
-        (GOOD.replace("max_iterations = 2", "population_size = 1"), 8, ["population_size",
-         ">= 2"]),
-        (GOOD.replace('name = "t"', 'nmae = "t"'), 1, ["unknown field", "seeds"]),
-        (GOOD.replace("seeds = [3, 1]", "seeds = -2"), 2, ["seeds", ">= 1"]),
-        (GOOD.replace("triggers = [true, false]", 'triggers = ["on"]'), 3, ["triggers"]),
-        (GOOD.replace("max_evaluations = 200", "max_evals = 200"), 4, ["max_evals",
-         "max_evaluations, max_iterations"]),
-        (GOOD.replace("max_evaluations = 200", "max_evaluations = 0"), 4, ["max_evaluations"]),
-        (GOOD.replace('label = "plain"', "colour = 1"), 12, ["unknown field", "label"]),
-        (GOOD.replace('name = "paper"', 'name = "moon"'), 15, ["unknown scenario 'moon'",
-         "paper-straight"]),
-        (GOOD.replace("n_steps = 8", "n_stepz = 8"), 16, ["n_stepz", "horizon_steps"]),
-        (GOOD.replace("n_steps = 8", "n_steps = 0"), 16, ["n_steps", "[1,"]),
-        (GOOD.replace("settle_time_s = 0.4", "settle_time_s = 9.0"), 16, ["settle_time_s",
-         "after the end"]),
-        (GOOD.replace('label = "plain"', 'label = "modified-bso[max_iterations=2]"'), 12,
-         ["used twice"]),
-        (GOOD.replace("seeds = [3, 1]", "seeds = [3, 1"), None, ["not valid TOML"]),
+        (
+            GOOD.replace('name = "modified-bso"\n', 'name = "psoo"\n'),
+            "optimizers[0].name",
+            ["unknown optimizer 'psoo'", "modified-bso-no-modifications"],
+        ),
+        (
+            GOOD.replace("max_iterations = 2", "max_iteration = 2"),
+            "optimizers[0].overrides.max_iteration",
+            ["max_iteration", "population_size"],
+        ),
+        (
+            GOOD.replace("max_iterations = 2", "population_size = 1"),
+            "optimizers[0].overrides.population_size",
+            ["population_size", ">= 2"],
+        ),
+        (GOOD.replace('name = "t"', 'nmae = "t"'), "nmae", ["unknown field", "seeds"]),
+        (GOOD.replace("seeds = [3, 1]", "seeds = -2"), "seeds", ["seeds", ">= 1"]),
+        (GOOD.replace("triggers = [true, false]", 'triggers = ["on"]'), "triggers", ["triggers"]),
+        (
+            GOOD.replace("max_evaluations = 200", "max_evals = 200"),
+            "budgets[1].max_evals",
+            ["max_evals", "max_evaluations, max_iterations"],
+        ),
+        (
+            GOOD.replace("max_evaluations = 200", "max_evaluations = 0"),
+            "budgets[1]",
+            ["max_evaluations"],
+        ),
+        (
+            GOOD.replace('label = "plain"', "colour = 1"),
+            "optimizers[1].colour",
+            ["unknown field", "label"],
+        ),
+        (
+            GOOD.replace('name = "paper"', 'name = "moon"'),
+            "scenarios[0].name",
+            ["unknown scenario 'moon'", "paper-straight"],
+        ),
+        (
+            GOOD.replace("n_steps = 8", "n_stepz = 8"),
+            "scenarios[0].overrides.n_stepz",
+            ["n_stepz", "horizon_steps"],
+        ),
+        (
+            GOOD.replace("n_steps = 8", "n_steps = 0"),
+            "scenarios[0].overrides.n_steps",
+            ["n_steps", "[1,"],
+        ),
+        (
+            GOOD.replace("settle_time_s = 0.4", "settle_time_s = 9.0"),
+            "scenarios[0].overrides.settle_time_s",
+            ["settle_time_s", "after the end"],
+        ),
+        (
+            GOOD.replace('label = "plain"', 'label = "modified-bso[max_iterations=2]"'),
+            "optimizers[1].label",
+            ["used twice"],
+        ),
+        (
+            GOOD.replace("seeds = [3, 1]", "seeds = [3, 1"),
+            None,
+            ["not valid TOML", "line 3, column"],
+        ),
     ],
-)  # fmt: skip
-def test_validation_names_the_line_and_the_allowed_values(text, line, needles):
+)
+def test_validation_names_the_field_and_the_allowed_values(text, where, needles):
     message = error_of(text)
     assert message.startswith("s.toml")
-    if line is not None:
-        assert f"s.toml line {line}:" in message
+    if where is not None:
+        assert message.startswith(f"s.toml: {where}:")
     for needle in needles:
         assert needle in message
     assert "\n" not in message
@@ -158,7 +199,7 @@ def test_optional_optimizers_are_skipped_and_star_takes_every_registered_one():
     expected = sorted(n for n in OPTIMIZERS if not n.startswith("modified-bso-"))
     assert sorted(e.name for e in star.optimizers) == expected
     message = error_of('seeds = 1\n[[optimizers]]\nname = "*"\noverrides = { a = 1 }\n')
-    assert "line 4" in message and "not allowed" in message
+    assert "optimizers[0].overrides" in message and "not allowed" in message
 
 
 def test_same_configuration_twice_is_refused():
@@ -173,7 +214,15 @@ def test_cli_reports_a_bad_suite_in_one_line_exit_2(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text(GOOD.replace('name = "modified-bso"\n', 'name = "nope"\n'))
     result = subprocess.run(
-        [sys.executable, "-m", "benchmarks.cli", "sweep", str(bad), "--out", str(tmp_path / "o")],
+        [
+            sys.executable,
+            "-m",
+            "formation_bench.benchmarks.cli",
+            "sweep",
+            str(bad),
+            "--out",
+            str(tmp_path / "o"),
+        ],
         capture_output=True,
         text=True,
         timeout=120,
@@ -182,7 +231,7 @@ def test_cli_reports_a_bad_suite_in_one_line_exit_2(tmp_path):
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in result.stderr
     assert lines[0].startswith("formation-bench sweep: error:")
-    assert "line 7" in lines[0] and "unknown optimizer 'nope'" in lines[0]
+    assert "optimizers[0].name" in lines[0] and "unknown optimizer 'nope'" in lines[0]
 
 
 @pytest.mark.parametrize(

@@ -5,9 +5,11 @@ trigger settings, seeds and budgets; every combination is one closed-loop run.
 Shipped suites live in ``benchmarks/experiments/suites/NAME.toml``; any other TOML file can
 be given by path. The format is documented in ``docs/benchmarks.md``.
 
-Every error names the file, the line and the allowed values, e.g.::
+Every error names the file, the key path and the allowed values, e.g.::
 
-    paper.toml line 9: optimizers[0].name: unknown optimizer 'psoo'; allowed: ...
+    paper.toml: optimizers[0].name: unknown optimizer 'psoo'; allowed: ...
+
+(a TOML syntax error keeps the line and column that :mod:`tomllib` reports).
 
 Each run has an *identity*: the registered optimiser and scenario names, the
 fields their overrides actually change, the trigger, the budget and the seed.
@@ -362,22 +364,14 @@ class _Validator:
     def __init__(self, text: str, path: Path, data: dict[str, Any]) -> None:
         self.path = path
         self.data = data
-        self.lines = _line_index(text)
         self.text = text
 
     # errors ------------------------------------------------------------------------------------
 
     def fail(self, where: tuple[Any, ...], message: str) -> SuiteError:
-        line = self.line_of(where)
+        # tomllib gives positions for syntax errors only; a semantic error names its key path
         label = _dotted(where)
-        at = f" line {line}" if line else ""
-        return SuiteError(f"{self.path}{at}: {label + ': ' if label else ''}{message}")
-
-    def line_of(self, where: tuple[Any, ...]) -> int | None:
-        for n in range(len(where), 0, -1):
-            if where[:n] in self.lines:
-                return self.lines[where[:n]]
-        return None
+        return SuiteError(f"{self.path}: {label + ': ' if label else ''}{message}")
 
     # top level ---------------------------------------------------------------------------------
 
@@ -619,7 +613,7 @@ class _Validator:
         if label is None:
             label = name
             if effective:
-                label += "[" + ",".join(f"{k}={_short(v)}" for k, v in effective.items()) + "]"
+                label += "[" + ",".join(f"{k}={short_value(v)}" for k, v in effective.items()) + "]"
         elif not isinstance(label, str) or not label:
             raise self.fail((*where, "label"), f"must be a non-empty string, got {label!r}")
         return Entry(label, name, canonical_json(effective))
@@ -643,7 +637,8 @@ class _Validator:
             configs[entry.name, entry.overrides] = k
 
 
-def _short(value: Any) -> str:
+def short_value(value: Any) -> str:
+    """A field value as it appears in a label: compact JSON without quotes."""
     return json.dumps(value, separators=(",", ":")).strip('"')
 
 
@@ -656,86 +651,6 @@ def _dotted(where: tuple[Any, ...]) -> str:
     for part in where:
         text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
     return text
-
-
-# --- line numbers -------------------------------------------------------------------------------
-
-_HEADER = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*$")
-_KEY = re.compile(r"^\s*([A-Za-z0-9_\-]+(?:\s*\.\s*[A-Za-z0-9_\-]+)*|\"[^\"]*\")\s*=")
-_INLINE_KEY = re.compile(r"[{,]\s*([A-Za-z0-9_\-]+|\"[^\"]*\")\s*=")
-
-
-def _strip_comment(line: str) -> str:
-    quote = None
-    for k, char in enumerate(line):
-        if quote:
-            if char == quote:
-                quote = None
-        elif char in "\"'":
-            quote = char
-        elif char == "#":
-            return line[:k]
-    return line
-
-
-def _depth_change(text: str) -> int:
-    depth, quote = 0, None
-    for char in text:
-        if quote:
-            if char == quote:
-                quote = None
-        elif char in "\"'":
-            quote = char
-        elif char in "[{":
-            depth += 1
-        elif char in "]}":
-            depth -= 1
-    return depth
-
-
-def _line_index(text: str) -> dict[tuple[Any, ...], int]:
-    """Line (1-based) of every table header and key, keyed by its path.
-
-    A pragmatic scanner for the subset of TOML that suites use; a path it does not
-    find falls back to its parent's line, so an error always names some line.
-    """
-    index: dict[tuple[Any, ...], int] = {}
-    arrays: dict[tuple[str, ...], int] = {}
-    table: tuple[Any, ...] = ()
-    depth = 0
-    for number, raw in enumerate(text.splitlines(), start=1):
-        line = _strip_comment(raw)
-        if depth > 0:  # continuation of a multi-line array or inline table
-            depth += _depth_change(line)
-            continue
-        header = _HEADER.match(line)
-        if header:
-            parts = tuple(p.strip().strip('"') for p in header.group(2).split("."))
-            if header.group(1) == "[[":
-                arrays[parts] = arrays.get(parts, -1) + 1
-            table = _resolve(parts, arrays)
-            index.setdefault(table, number)
-            continue
-        key = _KEY.match(line)
-        if not key:
-            continue
-        parts = tuple(p.strip().strip('"') for p in key.group(1).split("."))
-        path = (*table, *parts)
-        index.setdefault(path, number)
-        value = line[key.end() :]
-        for inner in _INLINE_KEY.finditer(value):
-            index.setdefault((*path, inner.group(1).strip('"')), number)
-        depth = _depth_change(value)
-    return index
-
-
-def _resolve(parts: tuple[str, ...], arrays: dict[tuple[str, ...], int]) -> tuple[Any, ...]:
-    path: list[Any] = []
-    for n in range(1, len(parts) + 1):
-        path.append(parts[n - 1])
-        if parts[:n] in arrays:
-            path.append(arrays[parts[:n]])
-    return tuple(path)
 
 
 def run_count(suite: Suite) -> int:
