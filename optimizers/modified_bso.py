@@ -4,8 +4,8 @@ Per iteration: k-means of the population into ``m`` clusters (initial centres
 are ``m`` distinct members drawn at random); the best member of each cluster
 is its centre; with probability ``p_r`` a random centre is replaced by the
 best of ``n_r`` chaotic points (eqs. 6-7); every one of the ``N`` slots gets
-a new idea from a chaotic weighting of all centres (eqs. 8-9, with eq. 8 as
-corrected in the reading notes) moved by the logsig step of eq. (10), which
+a new idea from a chaotic weighting of all centres (eqs. 8-9, eq. 8 corrected as
+described in docs/paper.md) moved by the logsig step of eq. (10), which
 replaces the slot's member only when strictly better.
 
 Switching off ``all_centre_weighting`` uses Shi's (2011) idea selection

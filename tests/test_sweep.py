@@ -229,3 +229,26 @@ def test_results_read_back_as_one_frame(reference):
     }
     off = frame[~frame["trigger"]]
     assert (off["solves_total"] == 30).all()
+
+
+def test_the_recorded_commit_is_the_installed_code_not_the_current_directory(tmp_path, monkeypatch):
+    import subprocess
+
+    from formation_bench.benchmarks.experiments.store import git_info
+
+    other = tmp_path / "unrelated"
+    other.mkdir()
+    git = ["git", "-C", str(other), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    (other / "f").write_text("x")
+    subprocess.run([*git, "add", "f"], check=True)
+    subprocess.run([*git, "commit", "-qm", "x"], check=True)
+    unrelated = subprocess.run(
+        [*git, "rev-parse", "HEAD"], capture_output=True, text=True, check=True
+    ).stdout.strip()
+    monkeypatch.chdir(other)
+    info = git_info()
+    assert info["commit"] != unrelated
+    import formation_bench
+
+    assert info["version"] == formation_bench.__version__

@@ -273,28 +273,61 @@ def package_versions() -> dict[str, str | None]:
 
 
 def git_info() -> dict[str, Any]:
-    """Commit and dirty flag of the source tree this package runs from (None outside git)."""
-    source = Path(__file__).resolve().parent.parent
+    """The commit of the installed formation-bench code, never of the current directory.
+
+    A regular install carries the commit it was built from (stamped by
+    setuptools-scm; ``dirty`` when built from a tree with uncommitted changes).
+    An editable install runs the source folder as it is now, so its HEAD and
+    dirty flag are read from that folder.
+    """
+    import formation_bench
+
+    try:
+        from formation_bench import _version
+
+        built: str | None = getattr(_version, "__commit_id__", None)
+    except ImportError:
+        built = None
+    version = formation_bench.__version__
+    info: dict[str, Any] = {
+        "version": version,
+        "commit": built.removeprefix("g") if built else None,
+        "dirty": ".d" in version.partition("+")[2] if built else None,
+        "source": "built",
+    }
+    source = _editable_source()
+    if source is None:
+        return info
     try:
         commit = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=source,
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=True,
-        ).stdout.strip()
+            ["git", "rev-parse", "HEAD"], cwd=source, capture_output=True, text=True,
+            timeout=10, check=True,
+        ).stdout.strip()  # fmt: skip
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=source,
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=True,
-        ).stdout.strip()
+            ["git", "status", "--porcelain", "--untracked-files=no"], cwd=source,
+            capture_output=True, text=True, timeout=10, check=True,
+        ).stdout.strip()  # fmt: skip
     except (OSError, subprocess.SubprocessError):
-        return {"commit": None, "dirty": None, "source": str(source)}
-    return {"commit": commit, "dirty": bool(dirty), "source": str(source)}
+        return {**info, "commit": None, "dirty": None, "source": str(source)}
+    return {**info, "commit": commit, "dirty": bool(dirty), "source": str(source)}
+
+
+def _editable_source() -> Path | None:
+    """The source folder of an editable install (PEP 610's direct_url.json), else None."""
+    try:
+        text = metadata.distribution("formation-bench").read_text("direct_url.json")
+    except metadata.PackageNotFoundError:
+        return None
+    if not text:
+        return None
+    try:
+        direct = json.loads(text)
+    except json.JSONDecodeError:
+        return None
+    if not direct.get("dir_info", {}).get("editable"):
+        return None
+    url = str(direct.get("url", ""))
+    return Path(url.removeprefix("file://")) if url.startswith("file://") else None
 
 
 def machine_info() -> dict[str, Any]:
