@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
 import dataclasses
 import os
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -24,6 +26,7 @@ from formation_bench.benchmarks.analysis.paper import (
     format_seed_table,
     format_table,
 )
+from formation_bench.benchmarks.checks import LimitError, check_run
 from formation_bench.benchmarks.experiments.suite import effective_overrides, jsonable, short_value
 from formation_bench.benchmarks.outputs import write_metrics, write_text, write_trace
 from formation_bench.benchmarks.runner import (
@@ -32,6 +35,7 @@ from formation_bench.benchmarks.runner import (
     write_figures,
     write_trigger_figure,
 )
+from formation_bench.benchmarks.staging import OutputError, staged_folder
 from formation_bench.mpc.reference import REFERENCE_PATHS
 from formation_bench.mpc.scenario import SCENARIOS, Scenario, get_scenario
 from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
@@ -210,7 +214,38 @@ def labelled(name: str, default: Any, configured: Any) -> tuple[str, dict[str, A
 def cmd_run(args: argparse.Namespace) -> int:
     scenario, optimizer = _build(args)
     budget = _budget(args)
-    out = Path(args.out)
+    _check(scenario, optimizer, budget)
+    with _staged(args) as out:
+        outcome = _run_into(args, scenario, optimizer, budget, out)
+    print(_summary(outcome.metrics))
+    print(f"wrote {args.out}/metrics.json, trace.parquet{' and figures' if args.figures else ''}")
+    return 0
+
+
+def _check(scenario: Scenario, optimizer: Optimizer, budget: Budget | None) -> None:
+    try:
+        check_run(scenario, optimizer, budget)
+    except LimitError as err:
+        raise UsageError(str(err)) from None
+
+
+@contextlib.contextmanager
+def _staged(args: argparse.Namespace) -> Iterator[Path]:
+    """The staged output folder of a command; checked before any work starts."""
+    try:
+        with staged_folder(Path(args.out), overwrite=args.overwrite) as folder:
+            yield folder
+    except OutputError as err:
+        raise UsageError(str(err)) from None
+
+
+def _run_into(
+    args: argparse.Namespace,
+    scenario: Scenario,
+    optimizer: Optimizer,
+    budget: Budget | None,
+    out: Path,
+) -> RunOutcome:
     optimizer_label, optimizer_overrides = labelled(
         args.optimizer, get_optimizer(args.optimizer), optimizer
     )
@@ -236,9 +271,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.figures:
         write_figures(outcome, out, suffix, (5, 6) if args.trigger else (3, 4))
         write_trigger_figure(outcome, out, f"fig7_solve_instants_{suffix}.png")
-    print(_summary(outcome.metrics))
-    print(f"wrote {out}/metrics.json, trace.parquet{' and figures' if args.figures else ''}")
-    return 0
+    return outcome
 
 
 def reproduce_one(seed: int, out: Path, *, figures: bool = True) -> list[dict[str, Any]]:
@@ -267,12 +300,16 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     out = Path(args.out)
     seeds = list(dict.fromkeys(args.seeds))
     settle = get_scenario("paper").settle_time_s
-    runs = {
-        seed: reproduce_one(
-            seed, out if len(seeds) == 1 else out / f"seed{seed}", figures=args.figures
-        )
-        for seed in seeds
-    }
+    with _staged(args) as staging:
+        runs = {
+            seed: reproduce_one(
+                seed, staging if len(seeds) == 1 else staging / f"seed{seed}", figures=args.figures
+            )
+            for seed in seeds
+        }
+        if len(seeds) > 1:
+            table = format_seed_table({seed: comparison_rows(m) for seed, m in runs.items()})
+            write_text(staging / "summary.md", table + "\n")
     print()
     print(
         f"Paper scenario, {DEFAULT_OPTIMIZER}, seed{'s' if len(seeds) > 1 else ''} "
@@ -284,11 +321,10 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         held = sum(row["holds"] for row in rows)
         print(f"{held} of {len(rows)} reported figures reached.")
     else:
-        table = format_seed_table({seed: comparison_rows(m) for seed, m in runs.items()})
         print(table)
-        write_text(out / "summary.md", table + "\n")
+    drawn = " and figures fig3-fig7" if args.figures else ""
     print(
-        f"wrote metrics.json, trace.parquet and figures fig3-fig7 to {out}"
+        f"wrote metrics.json, trace.parquet{drawn} to {out}"
         f"{'/seed*' if len(seeds) > 1 else ''} ({time.perf_counter() - start:.1f} s in all)"
     )
     return 0
@@ -337,6 +373,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=True,
         help="draw the figures (default); --no-figures writes metrics and trace only",
     )
+    reproduce.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a non-empty output folder (as a whole) instead of refusing",
+    )
     reproduce.set_defaults(func=cmd_reproduce)
 
     run = sub.add_parser("run", help="one closed-loop run")
@@ -376,6 +417,11 @@ def build_parser() -> argparse.ArgumentParser:
         action=argparse.BooleanOptionalAction,
         default=True,
         help="draw the figures (default); --no-figures writes metrics and trace only",
+    )
+    run.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a non-empty output folder (as a whole) instead of refusing",
     )
     run.set_defaults(func=cmd_run)
 

@@ -10,10 +10,12 @@ import argparse
 import os
 import sys
 import time
+from pathlib import Path
 
 from formation_bench.benchmarks.experiments.store import StoreError
 from formation_bench.benchmarks.experiments.suite import SuiteError, load_suite, shipped_suites
 from formation_bench.benchmarks.experiments.sweep import DEFAULT_JOBS, SweepError, plan, run_sweep
+from formation_bench.benchmarks.staging import OutputError, check_output_folder, staged_folder
 from formation_bench.plugins import PluginError
 
 USAGE_ERRORS: tuple[type[Exception], ...] = (SuiteError, SweepError, StoreError, PluginError)
@@ -44,6 +46,12 @@ def _guarded(command: str, func):
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    try:
+        # a results folder is resumed, so only its kind and place are checked here
+        check_output_folder(out, overwrite=True)
+    except OutputError as err:
+        raise SweepError(str(err)) from None
     suite = load_suite(args.suite)
     if args.dry_run:
         from formation_bench.benchmarks.experiments.store import ResultStore
@@ -72,15 +80,20 @@ def cmd_report(args: argparse.Namespace) -> int:
     from formation_bench.benchmarks.analysis.report import ReportError, make_report
 
     start = time.perf_counter()
+    results = Path(args.results)
+    if not (results / "runs").is_dir():
+        raise StoreError(f"{results} holds no results (no runs/ folder); run a sweep into it first")
+    folder = Path(args.out) if args.out is not None else results / "report"
     try:
-        _, headline, folder = make_report(
-            args.results,
-            args.out,
-            baseline=args.baseline,
-            compare=args.compare,
-            figures=args.figures,
-        )
-    except ReportError as err:
+        with staged_folder(folder, overwrite=args.overwrite) as staging:
+            _, headline, _ = make_report(
+                results,
+                staging,
+                baseline=args.baseline,
+                compare=args.compare,
+                figures=args.figures,
+            )
+    except (ReportError, OutputError) as err:
         print(f"formation-bench report: error: {err}", file=sys.stderr)
         return 2
     print(headline)
@@ -150,6 +163,11 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         help="factor compared (default: optimizer if the results hold several, else trigger)",
     )
     report.add_argument("--out", help="report folder (default: DIR/report)")
+    report.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing report folder (as a whole) instead of refusing",
+    )
     report.add_argument(
         "--figures",
         action=argparse.BooleanOptionalAction,

@@ -5,7 +5,6 @@ open (reference path, formation frame, estimate extension, decision blocking,
 weights) are fields with documented defaults, so a sweep can vary them.
 """
 
-
 from __future__ import annotations
 
 import dataclasses
@@ -37,6 +36,22 @@ class EstimateExtension(enum.StrEnum):
     """Propagate the plan's terminal state with zero control (constant speed and heading)."""
     HOLD = "hold"
     """Hold the plan's terminal position (the literal reading of Section 2.2)."""
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+        value, bool | np.bool_
+    )
+
+
+def _number_array(name: str, value: object) -> np.ndarray:
+    """``value`` as a float array, or a ValueError naming the field."""
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"Scenario.{name} must be a tuple of tuples of numbers, got {value!r}"
+        ) from None
 
 
 @dataclass(frozen=True)
@@ -138,9 +153,11 @@ class Scenario:
 
     def __post_init__(self) -> None:
         validate_fields(self)
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"Scenario.name must be a non-empty string, got {self.name!r}")
         # the structured fields are checked together, after the declared ranges
-        states = np.asarray(self.initial_states, dtype=np.float64)
-        offsets = np.asarray(self.formation_offsets, dtype=np.float64)
+        states = _number_array("initial_states", self.initial_states)
+        offsets = _number_array("formation_offsets", self.formation_offsets)
         if states.ndim != 2 or states.shape[1] != 4 or states.shape[0] < 2:
             raise ValueError(
                 "Scenario.initial_states must be a list of at least 2 (x, y, heading, speed) "
@@ -159,7 +176,9 @@ class Scenario:
                 f"formation centre), got mean {offsets.mean(axis=0).tolist()}"
             )
         if self.reference_start is not None and (
-            len(self.reference_start) != 2
+            not isinstance(self.reference_start, tuple | list)
+            or len(self.reference_start) != 2
+            or not all(_is_number(c) for c in self.reference_start)
             or not all(math.isfinite(c) for c in self.reference_start)
         ):
             raise ValueError(
@@ -167,7 +186,16 @@ class Scenario:
                 f"got {self.reference_start!r}"
             )
         for field_name in ("accel_bounds", "turn_rate_bounds"):
-            lo, hi = getattr(self, field_name)
+            pair = getattr(self, field_name)
+            if not (
+                isinstance(pair, tuple | list)
+                and len(pair) == 2
+                and all(_is_number(v) for v in pair)
+            ):
+                raise ValueError(
+                    f"Scenario.{field_name} must be a pair (lower, upper) of numbers, got {pair!r}"
+                )
+            lo, hi = pair
             if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
                 raise ValueError(
                     f"Scenario.{field_name} must be finite (lower, upper) with lower < upper, "

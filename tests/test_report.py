@@ -81,7 +81,7 @@ def test_report_compares_triggers_and_refuses_an_unknown_baseline(results, tmp_p
     assert code == 0
     assert "compared: trigger (baseline 'off')" in capsys.readouterr().out
     assert not (out / "figures").exists()
-    assert main(["report", str(results), "--baseline", "pso"]) == 2
+    assert main(["report", str(results), "--baseline", "pso", "--overwrite"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert err.startswith("formation-bench report: error: --baseline: 'pso'")

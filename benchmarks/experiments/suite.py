@@ -331,6 +331,8 @@ def shipped_suites() -> list[str]:
 def resolve_suite_path(name_or_path: str) -> Path:
     """A shipped suite's file, or the given path if it is a file."""
     candidate = Path(name_or_path)
+    if candidate.is_dir():
+        raise SuiteError(f"suite {name_or_path}: is a folder; give a suite .toml file")
     if candidate.suffix == ".toml" or candidate.is_file():
         if not candidate.is_file():
             raise SuiteError(f"suite file {name_or_path} does not exist")
@@ -347,7 +349,12 @@ def resolve_suite_path(name_or_path: str) -> Path:
 def load_suite(name_or_path: str) -> Suite:
     """Read and validate a suite (shipped name or path); raises :class:`SuiteError`."""
     path = resolve_suite_path(name_or_path)
-    text = path.read_text()
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise SuiteError(f"{path}: not UTF-8 text ({err.reason} at byte {err.start})") from None
+    except OSError as err:
+        raise SuiteError(f"{path}: cannot be read ({err.strerror})") from None
     return parse_suite(text, path)
 
 
@@ -394,6 +401,8 @@ class _Validator:
         scenarios = self.scenarios()
         for entry in scenarios:
             self.check_settle_time(entry)
+        budgets = self.budgets()
+        self.check_limits(optimizers, scenarios, budgets)
         return Suite(
             name=name,
             path=self.path,
@@ -401,7 +410,7 @@ class _Validator:
             description=description,
             seeds=self.seeds(),
             triggers=self.triggers(),
-            budgets=self.budgets(),
+            budgets=budgets,
             trace=trace,
             optimizers=optimizers,
             scenarios=scenarios,
@@ -562,6 +571,32 @@ class _Validator:
                 f"settle_time_s={scenario.settle_time_s:g} is after the end of the run "
                 f"({end:g} s = n_steps * period_s); lower settle_time_s",
             )
+
+    def check_limits(
+        self,
+        optimizers: tuple[Entry, ...],
+        scenarios: tuple[Entry, ...],
+        budgets: tuple[tuple[int | None, int | None], ...],
+    ) -> None:
+        """Every combination must be a run that finishes (before any of them starts)."""
+        from formation_bench.benchmarks.checks import LimitError, check_run
+
+        for scenario_entry in scenarios:
+            scenario = get_scenario(
+                scenario_entry.name, **from_json_value(json.loads(scenario_entry.overrides))
+            )
+            for optimizer_entry in optimizers:
+                optimizer = get_optimizer(
+                    optimizer_entry.name, **from_json_value(json.loads(optimizer_entry.overrides))
+                )
+                for limits in budgets:
+                    budget = None if limits == (None, None) else Budget(*limits)
+                    try:
+                        check_run(scenario, optimizer, budget)
+                    except LimitError as err:
+                        raise self.fail(
+                            (), f"{scenario_entry.label} with {optimizer_entry.label}: {err}"
+                        ) from None
 
     def find_entry(self, key: str, entry: Entry) -> tuple[Any, ...]:
         for k, raw in enumerate(self.data.get(key) or []):

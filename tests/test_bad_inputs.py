@@ -1,0 +1,196 @@
+"""Bad input through the command line: exit 2, one line naming the field or path, no
+traceback, and nothing written that looks finished."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from formation_bench.benchmarks.cli import main
+
+RUN = ["run", "--optimizer", "pso", "--no-figures"]
+SHORT = ["--set", "n_steps=3", "--set", "settle_time_s=0"]
+
+# (arguments with {out}, {file}, {dir}, {suite}, {bad_utf8}, {bad_toml} placeholders, needle)
+CASES = [
+    # names and options
+    (["run", "--optimizer", "psoo", "--out", "{out}"], "--optimizer"),
+    ([*RUN, "--scenario", "moon", "--out", "{out}"], "--scenario"),
+    ([*RUN, "--seed", "-1", "--out", "{out}"], "--seed"),
+    ([*RUN, "--seed", "x", "--out", "{out}"], "--seed"),
+    ([*RUN, "--seed", str(2**128), "--out", "{out}"], "--seed"),
+    ([*RUN, "--max-evaluations", "0", "--out", "{out}"], "--max-evaluations"),
+    ([*RUN, "--max-iterations", "-2", "--out", "{out}"], "--max-iterations"),
+    ([*RUN, "--max-evaluations", "ten", "--out", "{out}"], "--max-evaluations"),
+    ([*RUN, "--frobnicate", "--out", "{out}"], "--frobnicate"),
+    (["--plugin", "no_such_plugin_module", *RUN, "--out", "{out}"], "no_such_plugin_module"),
+    (["--plugin", "{dir}/missing.py", *RUN, "--out", "{out}"], "missing.py"),
+    (["list", "--fields", "nope"], "--fields"),
+    # --set: form, names and values
+    ([*RUN, "--set", "n_steps", "--out", "{out}"], "--set"),
+    ([*RUN, "--set", "=3", "--out", "{out}"], "--set"),
+    ([*RUN, "--set", "colour=3", "--out", "{out}"], "colour"),
+    ([*RUN, "--set", "planet.n_steps=3", "--out", "{out}"], "planet.n_steps"),
+    ([*RUN, "--set", "scenario.population_size=3", "--out", "{out}"], "population_size"),
+    ([*RUN, "--set", "n_steps=2.5", "--out", "{out}"], "n_steps"),
+    ([*RUN, "--set", "n_steps=abc", "--out", "{out}"], "n_steps"),
+    ([*RUN, "--set", "n_steps=0", "--out", "{out}"], "n_steps"),
+    ([*RUN, "--set", "period_s=0", "--out", "{out}"], "period_s"),
+    ([*RUN, "--set", "w_trj=nan", "--out", "{out}"], "w_trj"),
+    ([*RUN, "--set", "w_dst=-1", "--out", "{out}"], "w_dst"),
+    ([*RUN, "--set", "eta=1.5", "--out", "{out}"], "eta"),
+    ([*RUN, "--set", "accel_bounds=(1,)", "--out", "{out}"], "accel_bounds"),
+    ([*RUN, "--set", "accel_bounds=(1,x)", "--out", "{out}"], "accel_bounds"),
+    ([*RUN, "--set", "turn_rate_bounds=(1,-1)", "--out", "{out}"], "turn_rate_bounds"),
+    ([*RUN, "--set", "initial_states=((1,2),)", "--out", "{out}"], "initial_states"),
+    ([*RUN, "--set", "initial_states=((a,b),)", "--out", "{out}"], "initial_states"),
+    ([*RUN, "--set", "formation_offsets=((1,1),(2,2),(3,3))", "--out", "{out}"],
+     "formation_offsets"),
+    ([*RUN, "--set", "reference=moon", "--out", "{out}"], "reference"),
+    ([*RUN, "--set", "reference_start=(1,)", "--out", "{out}"], "reference_start"),
+    ([*RUN, "--set", "name=(1,2)", "--out", "{out}"], "name"),
+    ([*RUN, "--set", "n_blocks=50", "--out", "{out}"], "n_blocks"),
+    ([*RUN, "--set", "trigger_lookahead_steps=-1", "--out", "{out}"], "trigger_lookahead_steps"),
+    ([*RUN, "--set", "estimate_extension=guess", "--out", "{out}"], "estimate_extension"),
+    ([*RUN, "--set", "population_size=1", "--out", "{out}"], "population_size"),
+    ([*RUN, "--set", "bound_handling=bounce", "--out", "{out}"], "bound_handling"),
+    (["run", "--optimizer", "modified-bso", "--no-figures", "--set", "n_clusters=99",
+      "--out", "{out}"], "n_clusters"),
+    # cross-field conditions and limits that would never finish or exhaust memory
+    ([*RUN, "--set", "n_steps=10", "--out", "{out}"], "settle_time_s"),
+    ([*RUN, "--set", "n_steps=1000000", "--out", "{out}"], "n_steps"),
+    ([*RUN, "--set", "horizon_steps=5000", "--set", "n_blocks=1", "--out", "{out}"],
+     "horizon_steps"),
+    ([*RUN, "--set", "population_size=1000000", "--out", "{out}"], "population_size"),
+    ([*RUN, "--max-evaluations", "100000000", "--out", "{out}"], "max_evaluations"),
+    ([*RUN, "--set", "max_iterations=100000000", "--out", "{out}"], "max_iterations"),
+    # output paths
+    ([*RUN, *SHORT, "--out", "{file}"], "is a file"),
+    ([*RUN, *SHORT, "--out", "{file}/sub"], "is a file"),
+    ([*RUN, *SHORT, "--out", "{full}"], "--overwrite"),
+    (["reproduce", "--no-figures", "--out", "{file}"], "is a file"),
+    (["reproduce", "--no-figures", "--out", "{full}"], "--overwrite"),
+    (["sweep", "paper", "--out", "{file}"], "is a file"),
+    (["report", "{file}"], "no results"),
+    (["report", "{dir}/nothing-here"], "no results"),
+    # suites
+    (["sweep", "{dir}", "--out", "{out}"], "is a folder"),
+    (["sweep", "{dir}/missing.toml", "--out", "{out}"], "does not exist"),
+    (["sweep", "{bad_utf8}", "--out", "{out}"], "UTF-8"),
+    (["sweep", "{bad_toml}", "--out", "{out}"], "line"),
+    (["sweep", "{big_suite}", "--out", "{out}"], "n_steps"),
+    (["sweep", "nosuchsuite", "--out", "{out}"], "nosuchsuite"),
+    (["sweep", "paper", "--out", "{out}", "--jobs", "0"], "--jobs"),
+]  # fmt: skip
+
+
+@pytest.fixture
+def places(tmp_path: Path) -> dict[str, str]:
+    afile = tmp_path / "afile"
+    afile.write_text("not a folder\n")
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / "keep.txt").write_text("mine\n")
+    bad_utf8 = tmp_path / "latin1.toml"
+    bad_utf8.write_bytes('name = "caf\xe9"\nseeds = 1\n'.encode("latin-1"))
+    bad_toml = tmp_path / "broken.toml"
+    bad_toml.write_text("seeds = [1, 2\n")
+    big_suite = tmp_path / "big.toml"
+    big_suite.write_text(
+        'seeds = 1\n[[optimizers]]\nname = "pso"\n'
+        '[[scenarios]]\nname = "paper"\noverrides = { n_steps = 9000000 }\n'
+    )
+    return {
+        "out": str(tmp_path / "out"),
+        "file": str(afile),
+        "full": str(full),
+        "dir": str(tmp_path),
+        "bad_utf8": str(bad_utf8),
+        "bad_toml": str(bad_toml),
+        "big_suite": str(big_suite),
+    }
+
+
+def snapshot(root: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(root)): p.read_bytes() if p.is_file() else b"<dir>"
+        for p in sorted(root.rglob("*"))
+    }
+
+
+def test_there_are_at_least_forty_distinct_cases():
+    assert len({tuple(args) for args, _ in CASES}) == len(CASES) >= 40
+
+
+@pytest.mark.parametrize(("args", "needle"), CASES, ids=lambda v: " ".join(v)[:60] if
+                         isinstance(v, list) else None)  # fmt: skip
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(args, needle, places, tmp_path, capsys):
+    before = snapshot(tmp_path)
+    argv = [a.format(**places) for a in args]
+    try:
+        code = main(argv)
+    except SystemExit as exit_:  # argparse's own errors
+        code = exit_.code
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1, err
+    assert "Traceback" not in err
+    assert err.startswith("formation-bench"), err
+    assert needle in err, err
+    assert snapshot(tmp_path) == before  # nothing created, nothing overwritten
+
+
+def test_ctrl_c_exits_130_in_one_line_and_leaves_nothing_finished(tmp_path):
+    out = tmp_path / "run"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "formation_bench.benchmarks.cli", "run", "--optimizer",
+         "modified-bso", "--no-trigger", "--set", "n_steps=100000", "--set", "n_blocks=5",
+         "--no-figures", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        # a test runner started in the background ignores SIGINT, and a child inherits that:
+        # restore the default so that Python turns Ctrl-C into KeyboardInterrupt, as in a shell
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+    # interrupt once the run has started (its staging folder exists); waiting on the
+    # process itself returns at once should it end early
+    staging: list[Path] = []
+    for _ in range(6000):  # at most 5 minutes on a loaded machine
+        staging = list(tmp_path.glob(".run.*.partial"))
+        if staging:
+            break
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            process.wait(timeout=0.05)
+        assert process.returncode is None, process.communicate()
+    assert staging, "the run never started"
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "formation-bench run: interrupted"
+    assert "Traceback" not in err
+    assert not out.exists()
+    assert not list(tmp_path.glob(".run.*"))
+
+
+def test_outputs_get_ordinary_permissions(tmp_path):
+    out = tmp_path / "run"
+    assert main([*RUN, *SHORT, "--no-trigger", "--out", str(out)]) == 0
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (out.stat().st_mode & 0o777) == 0o777 & ~mask
+    for path in out.iterdir():
+        assert (path.stat().st_mode & 0o777) == 0o666 & ~mask, path
+
+
+def test_overwrite_replaces_the_folder_as_a_whole(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "stale_figure.png").write_text("old")
+    assert main([*RUN, *SHORT, "--no-trigger", "--overwrite", "--out", str(out)]) == 0
+    assert not (out / "stale_figure.png").exists()
+    assert (out / "metrics.json").is_file()
