@@ -252,3 +252,26 @@ def test_the_recorded_commit_is_the_installed_code_not_the_current_directory(tmp
     import formation_bench
 
     assert info["version"] == formation_bench.__version__
+
+
+def test_a_sweep_that_fails_or_was_killed_is_not_left_running(tmp_path, monkeypatch):
+    import json
+
+    out = tmp_path / "store"
+
+    def explode(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr("formation_bench.benchmarks.experiments.sweep._execute", explode)
+    with pytest.raises(OSError, match="disk full"):
+        sweep(tiny(seeds="1"), out)
+    sessions = json.loads((out / "manifest.json").read_text())["sessions"]
+    assert [s["state"] for s in sessions] == ["error"]
+    # a sweep killed with SIGKILL leaves "running"; the next sweep holds the lock and knows
+    manifest = json.loads((out / "manifest.json").read_text())
+    manifest["sessions"][0]["state"] = "running"
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    monkeypatch.undo()
+    sweep(tiny(seeds="1"), out)
+    states = [s["state"] for s in json.loads((out / "manifest.json").read_text())["sessions"]]
+    assert states == ["killed", "done"]

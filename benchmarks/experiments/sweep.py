@@ -371,6 +371,11 @@ def _sweep_locked(
     start = time.perf_counter()
     manifest = store.read_manifest()
     _check_suite_matches(manifest, suite, store.root, allow_suite_change)
+    if manifest is not None:
+        # this sweep holds the folder's lock, so a session still marked running was killed
+        for stale in manifest.get("sessions", []):
+            if stale.get("state") == "running":
+                stale["state"] = "killed"
     store.create()
     store.remove_temporaries()
     pending, summary = plan(suite, store)
@@ -387,20 +392,24 @@ def _sweep_locked(
     session.update(total=summary.total, already=summary.already, redo=summary.redo)
     manifest = _updated_manifest(manifest, suite, summary.total, session)
     store.write_manifest(manifest)
+    state = "error"  # whatever ends the sweep, the manifest never says it is still running
     try:
         with _sigterm_as_interrupt():
             _execute(pending, store, summary, jobs, scheduler, progress, suite.name)
+        state = "failed" if summary.failed else "done"
     except KeyboardInterrupt:
         summary.interrupted = True
-    session.update(
-        finished=now(),
-        state="interrupted" if summary.interrupted else ("failed" if summary.failed else "done"),
-        stored=summary.stored,
-        failed=summary.failed,
-        wall_s=round(time.perf_counter() - start, 3),
-    )
-    manifest["updated"] = session["finished"]
-    store.write_manifest(manifest)
+        state = "interrupted"
+    finally:
+        session.update(
+            finished=now(),
+            state=state,
+            stored=summary.stored,
+            failed=summary.failed,
+            wall_s=round(time.perf_counter() - start, 3),
+        )
+        manifest["updated"] = session["finished"]
+        store.write_manifest(manifest)
     return summary
 
 
