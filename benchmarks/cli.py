@@ -31,11 +31,13 @@ from formation_bench.benchmarks.experiments.suite import effective_overrides, js
 from formation_bench.benchmarks.outputs import write_metrics, write_text, write_trace
 from formation_bench.benchmarks.runner import (
     RunOutcome,
+    kernels_cached,
     run_closed_loop,
     write_figures,
     write_trigger_figure,
 )
 from formation_bench.benchmarks.staging import OutputError, staged_folder
+from formation_bench.mpc.loop import ProgressCallback
 from formation_bench.mpc.reference import REFERENCE_PATHS
 from formation_bench.mpc.scenario import SCENARIOS, Scenario, get_scenario
 from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
@@ -239,6 +241,29 @@ def _staged(args: argparse.Namespace) -> Iterator[Path]:
         raise UsageError(str(err)) from None
 
 
+@contextlib.contextmanager
+def _progress_bar(label: str, total: int, show: bool | None) -> Iterator[ProgressCallback]:
+    """A progress bar on stderr (by default only on a terminal), fed by the loop's callback."""
+    from tqdm import tqdm
+
+    with tqdm(
+        total=total, desc=label, unit="instant", file=sys.stderr, leave=False,
+        disable=None if show is None else not show,
+    ) as bar:  # fmt: skip
+
+        def advance(done: int, total: int) -> None:
+            bar.update(done - bar.n)
+
+        yield advance
+
+
+def _compile_notice() -> None:
+    if not kernels_cached():
+        print(
+            "compiling numba kernels (first run only, about 15 s)...", file=sys.stderr, flush=True
+        )
+
+
 def _run_into(
     args: argparse.Namespace,
     scenario: Scenario,
@@ -254,9 +279,17 @@ def _run_into(
     )
     # an overridden scenario is named by what it is in the metrics, the trace and the titles
     scenario = scenario.with_overrides(name=scenario_label)
-    outcome = run_closed_loop(
-        scenario, optimizer_label, optimizer, trigger=args.trigger, seed=args.seed, budget=budget
-    )
+    _compile_notice()
+    with _progress_bar(optimizer_label, scenario.n_steps, args.progress) as progress:
+        outcome = run_closed_loop(
+            scenario,
+            optimizer_label,
+            optimizer,
+            trigger=args.trigger,
+            seed=args.seed,
+            budget=budget,
+            progress=progress,
+        )
     outcome.metrics.update(
         optimizer_name=args.optimizer,
         optimizer_overrides=jsonable(optimizer_overrides),
@@ -274,15 +307,20 @@ def _run_into(
     return outcome
 
 
-def reproduce_one(seed: int, out: Path, *, figures: bool = True) -> list[dict[str, Any]]:
+def reproduce_one(
+    seed: int, out: Path, *, figures: bool = True, progress: bool | None = None
+) -> list[dict[str, Any]]:
     """Both paper runs (without, then with trigger) for one seed; writes outputs to ``out``."""
     scenario = get_scenario("paper")
     optimizer = get_optimizer(DEFAULT_OPTIMIZER)
     outcomes: list[RunOutcome] = []
     for trigger in (False, True):
-        outcome = run_closed_loop(
-            scenario, DEFAULT_OPTIMIZER, optimizer, trigger=trigger, seed=seed
-        )
+        label = f"seed {seed}, {'with' if trigger else 'without'} trigger"
+        with _progress_bar(label, scenario.n_steps, progress) as advance:
+            outcome = run_closed_loop(
+                scenario, DEFAULT_OPTIMIZER, optimizer, trigger=trigger, seed=seed,
+                progress=advance,
+            )  # fmt: skip
         outcomes.append(outcome)
         print(_summary(outcome.metrics), flush=True)
     metrics = [o.metrics for o in outcomes]
@@ -300,10 +338,14 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     out = Path(args.out)
     seeds = list(dict.fromkeys(args.seeds))
     settle = get_scenario("paper").settle_time_s
+    _compile_notice()
     with _staged(args) as staging:
         runs = {
             seed: reproduce_one(
-                seed, staging if len(seeds) == 1 else staging / f"seed{seed}", figures=args.figures
+                seed,
+                staging if len(seeds) == 1 else staging / f"seed{seed}",
+                figures=args.figures,
+                progress=args.progress,
             )
             for seed in seeds
         }
@@ -378,6 +420,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="replace a non-empty output folder (as a whole) instead of refusing",
     )
+    reproduce.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: only on a terminal)",
+    )
     reproduce.set_defaults(func=cmd_reproduce)
 
     run = sub.add_parser("run", help="one closed-loop run")
@@ -422,6 +470,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--overwrite",
         action="store_true",
         help="replace a non-empty output folder (as a whole) instead of refusing",
+    )
+    run.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: only on a terminal)",
     )
     run.set_defaults(func=cmd_run)
 

@@ -11,7 +11,7 @@ import pandas as pd
 
 from formation_bench.benchmarks.outputs import trace_frame
 from formation_bench.mpc.cost import batch_cost
-from formation_bench.mpc.loop import Trace, simulate
+from formation_bench.mpc.loop import ProgressCallback, Trace, simulate
 from formation_bench.mpc.metrics import compute_metrics, pair_names
 from formation_bench.mpc.model import rollout
 from formation_bench.mpc.scenario import Scenario
@@ -25,6 +25,22 @@ class RunOutcome:
     trace: Trace
     metrics: dict[str, Any]
     frame: pd.DataFrame
+
+
+def kernels_cached() -> bool:
+    """Whether numba's on-disk cache holds the harness's and the modified BSO's kernels.
+
+    A cold cache means a first run that compiles for several seconds; the
+    command line says so before it starts.
+    """
+    from formation_bench.mpc import cost
+    from formation_bench.optimizers import modified_bso_kernels
+
+    for module in (cost, modified_bso_kernels):
+        path = Path(module.__file__)
+        if not any((path.parent / "__pycache__").glob(f"{path.stem}.*.nbi")):
+            return False
+    return True
 
 
 def warm_up_kernels() -> None:
@@ -52,6 +68,7 @@ def run_closed_loop(
     trigger: bool,
     seed: int,
     budget: Budget | None = None,
+    progress: ProgressCallback | None = None,
 ) -> RunOutcome:
     """Simulate one run and compute its metrics (``budget`` None: the optimiser's own)."""
     warm_up_kernels()
@@ -62,6 +79,7 @@ def run_closed_loop(
         seed=seed,
         optimizer_name=optimizer_name,
         budget=budget,
+        progress=progress,
     )
     return RunOutcome(trace, compute_metrics(trace), trace_frame(trace))
 

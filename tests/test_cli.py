@@ -216,3 +216,29 @@ def test_version_and_help(capsys):
         main(["--help"])
     text = capsys.readouterr().out
     assert "examples:" in text and "--plugin" in text and "``" not in text
+
+
+def test_first_run_notice_and_progress_bar_go_to_stderr(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr("formation_bench.benchmarks.cli.kernels_cached", lambda: False)
+    args = ["run", "--optimizer", "pso", "--no-trigger", "--no-figures", "--progress",
+            "--set", "n_steps=4", "--set", "settle_time_s=0"]  # fmt: skip
+    assert main([*args, "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    assert "compiling numba kernels" in err and "/4 [" in err and "instant" in err
+    monkeypatch.setattr("formation_bench.benchmarks.cli.kernels_cached", lambda: True)
+    assert main([*args, "--no-progress", "--out", str(tmp_path / "b")]) == 0
+    assert capsys.readouterr().err == ""
+
+
+def test_the_kernel_cache_is_found_after_a_run():
+    import numpy as np
+
+    from formation_bench.benchmarks.runner import kernels_cached, warm_up_kernels
+    from formation_bench.optimizers import Bounds, Budget, get_optimizer
+
+    warm_up_kernels()
+    get_optimizer("modified-bso").minimize(
+        lambda x: np.sum(x**2, axis=1), Bounds(-np.ones(4), np.ones(4)),
+        np.random.default_rng(0), Budget(max_evaluations=100),
+    )  # fmt: skip
+    assert kernels_cached()
