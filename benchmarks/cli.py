@@ -338,8 +338,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     out = Path(args.out)
     seeds = list(dict.fromkeys(args.seeds))
     settle = get_scenario("paper").settle_time_s
-    _compile_notice()
     with _staged(args) as staging:
+        _compile_notice()  # after the output checks, so a refused command prints one line
         runs = {
             seed: reproduce_one(
                 seed,
