@@ -3,6 +3,7 @@ machine after the work has been done."""
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 from formation_bench.mpc.scenario import Scenario
@@ -20,6 +21,16 @@ MAX_EVALUATIONS = 10_000_000
 """Cost evaluations per solve: about a minute per solve at 5 µs each."""
 MAX_ITERATIONS = 1_000_000
 """Iterations per solve."""
+MAX_SEED = 2**128 - 1
+"""Largest seed: a sweep run's SeedSequence entropy is 128 bits, and ``run --seed`` repeats it."""
+MAX_SEEDS = 10_000
+"""Seeds per command or suite: each seed is at least one closed loop of seconds, so 10,000 of
+them are most of a day on a laptop (and a suite of a billion seeds would not fit in memory)."""
+DASK_SCHEMES = ("tcp", "tls", "ucx", "ws", "wss")
+"""Dask communication protocols that reach a scheduler in another process."""
+_HOST_PORT = re.compile(
+    r"(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9._-]*)(?::(?P<port>\d+))?"
+)
 
 
 class LimitError(ValueError):
@@ -73,3 +84,27 @@ def _check_budget(what: str, budget: Budget | None) -> None:
                 f"{what}: {name}={value} is more than {limit:,} per solve (a closed loop "
                 "makes hundreds of solves)"
             )
+
+
+def check_seed_count(count: int, what: str = "--seeds") -> None:
+    """Refuse more seeds than a command can run in a day."""
+    if count > MAX_SEEDS:
+        raise LimitError(
+            f"{what}: {count:,} seeds is more than {MAX_SEEDS:,} (each seed is at least one "
+            "closed loop of seconds: that many would run for days)"
+        )
+
+
+def check_scheduler_address(address: str) -> str:
+    """A Dask scheduler address, ``[PROTOCOL://]HOST[:PORT]``; returned unchanged."""
+    expected = f"expected [PROTOCOL://]HOST[:PORT] with PROTOCOL one of {', '.join(DASK_SCHEMES)}"
+    scheme, sep, rest = address.partition("://")
+    if not sep:
+        scheme, rest = "tcp", address
+    match = _HOST_PORT.fullmatch(rest)
+    if scheme not in DASK_SCHEMES or match is None:
+        raise LimitError(f"{expected} (e.g. tcp://host:8786), got {address!r}")
+    port = match["port"]
+    if port is not None and not 1 <= int(port) <= 65535:
+        raise LimitError(f"port must be in 1..65535, got {port} in {address!r}")
+    return address

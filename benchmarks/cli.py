@@ -11,6 +11,7 @@ import ast
 import contextlib
 import dataclasses
 import os
+import re
 import sys
 import time
 from collections.abc import Iterator
@@ -26,7 +27,7 @@ from formation_bench.benchmarks.analysis.paper import (
     format_seed_table,
     format_table,
 )
-from formation_bench.benchmarks.checks import LimitError, check_run
+from formation_bench.benchmarks.checks import MAX_SEED, LimitError, check_run, check_seed_count
 from formation_bench.benchmarks.experiments.suite import effective_overrides, jsonable, short_value
 from formation_bench.benchmarks.outputs import write_metrics, write_text, write_trace
 from formation_bench.benchmarks.runner import (
@@ -135,11 +136,30 @@ def _build(args: argparse.Namespace) -> tuple[Scenario, Optimizer]:
             get_optimizer(args.optimizer, **to_optimizer),
         )
     except (ValueError, TypeError, KeyError) as err:
-        raise UsageError(f"--set: {_message(err)}") from None
+        raise UsageError(_set_error(_message(err), args.set or [])) from None
 
 
 def _message(err: BaseException) -> str:
     return str(err.args[0]) if err.args else str(err)
+
+
+# a field check says "Class.field must be ..., got ..."
+_FIELD_ERROR = re.compile(r"(?P<cls>\w+)\.(?P<field>\w+) must be (?P<rest>.*)", re.DOTALL)
+
+
+def _set_error(message: str, assignments: list[str]) -> str:
+    """A field's error named as the user wrote it: ``--set FIELD: expected ..., got ...``."""
+    match = _FIELD_ERROR.fullmatch(message)
+    if match is None:
+        return f"--set: {message}"
+    field = match["field"]
+    kind = "scenario" if match["cls"] == "Scenario" else "optimizer"
+    written = field
+    for assignment in assignments:
+        name = assignment.partition("=")[0].strip()
+        if name in (field, f"{kind}.{field}"):
+            written = name
+    return f"--set {written}: expected {match['rest']}"
 
 
 def _summary(metrics: dict[str, Any]) -> str:
@@ -511,10 +531,6 @@ def _non_negative(text: str) -> int:
     return _integer(text, 0)
 
 
-MAX_SEED = 2**128 - 1
-"""Largest seed: a sweep run's SeedSequence entropy is 128 bits."""
-
-
 def _seed(text: str) -> int:
     try:
         value = int(text)
@@ -525,10 +541,20 @@ def _seed(text: str) -> int:
     return value
 
 
+def _check_arguments(args: argparse.Namespace) -> None:
+    """Checks that span a whole option (argparse checks each value on its own)."""
+    try:
+        if args.command == "reproduce":
+            check_seed_count(len(set(args.seeds)))
+    except LimitError as err:
+        raise UsageError(str(err)) from None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        _check_arguments(args)
         plugins.load_plugins(args.plugin)
         return args.func(args)
     except (UsageError, plugins.PluginError) as err:

@@ -10,15 +10,27 @@ import argparse
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
+from formation_bench.benchmarks.checks import LimitError, check_scheduler_address
 from formation_bench.benchmarks.experiments.store import StoreError
-from formation_bench.benchmarks.experiments.suite import SuiteError, load_suite, shipped_suites
+from formation_bench.benchmarks.experiments.suite import (
+    SuiteError,
+    load_suite,
+    shipped_suites,
+)
 from formation_bench.benchmarks.experiments.sweep import DEFAULT_JOBS, SweepError, plan, run_sweep
 from formation_bench.benchmarks.staging import OutputError, check_output_folder, staged_folder
 from formation_bench.plugins import PluginError
 
-USAGE_ERRORS: tuple[type[Exception], ...] = (SuiteError, SweepError, StoreError, PluginError)
+USAGE_ERRORS: tuple[type[Exception], ...] = (
+    SuiteError,
+    SweepError,
+    StoreError,
+    PluginError,
+    LimitError,
+)
 
 
 def _jobs(text: str) -> int:
@@ -31,7 +43,14 @@ def _jobs(text: str) -> int:
     return value
 
 
-def _guarded(command: str, func):
+def _scheduler(text: str) -> str:
+    try:
+        return check_scheduler_address(text)
+    except LimitError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _guarded(command: str, func: Callable[[argparse.Namespace], int]):
     def run(args: argparse.Namespace) -> int:
         try:
             return func(args)
@@ -127,6 +146,7 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
     sweep.add_argument(
         "--scheduler",
         metavar="ADDRESS",
+        type=_scheduler,
         help="send the runs to this Dask distributed scheduler (e.g. tcp://host:8786) "
         "instead of local workers; --jobs is then ignored",
     )

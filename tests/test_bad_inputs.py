@@ -88,6 +88,26 @@ CASES = [
     (["sweep", "{big_suite}", "--out", "{out}"], "n_steps"),
     (["sweep", "nosuchsuite", "--out", "{out}"], "nosuchsuite"),
     (["sweep", "paper", "--out", "{out}", "--jobs", "0"], "--jobs"),
+    (["sweep", "{huge_suite}", "--out", "{out}", "--dry-run"], "seeds"),
+    (["sweep", "{big_seed_suite}", "--out", "{out}", "--dry-run"], "2**128 - 1"),
+    # more values: wrong types, lengths and magnitudes
+    ([*RUN, "--set", "rk4_substeps=100000", "--out", "{out}"], "rk4_substeps"),
+    ([*RUN, "--set", "w_trj=1e999", "--out", "{out}"], "w_trj"),
+    ([*RUN, "--set", "period_s='0.1'", "--out", "{out}"], "period_s"),
+    ([*RUN, "--set", "n_steps=1e3", "--out", "{out}"], "n_steps"),
+    ([*RUN, "--set", "accel_bounds=(1,2,3)", "--out", "{out}"], "accel_bounds"),
+    ([*RUN, "--set", "optimizer.population_size=True", "--out", "{out}"],
+     "optimizer.population_size"),
+    (["reproduce", "--no-figures", "--seeds", str(2**128), "--out", "{out}"], "--seed"),
+    (["reproduce", "--no-figures", "--seeds", *map(str, range(10_001)), "--out", "{out}"],
+     "--seeds"),
+    # more output paths and addresses
+    (["sweep", "paper", "--out", "{file}/sub"], "is a file"),
+    (["report", "{results}", "--out", "{file}"], "is a file"),
+    (["report", "{results}", "--out", "{full}"], "--overwrite"),
+    (["sweep", "paper", "--out", "{out}", "--scheduler", "not an address"], "--scheduler"),
+    (["sweep", "paper", "--out", "{out}", "--scheduler", "http://host:8786"], "--scheduler"),
+    (["sweep", "paper", "--out", "{out}", "--scheduler", "tcp://host:99999"], "--scheduler"),
 ]  # fmt: skip
 
 
@@ -113,6 +133,16 @@ def places(tmp_path: Path) -> dict[str, str]:
         'seeds = 1\n[[optimizers]]\nname = "pso"\n'
         '[[scenarios]]\nname = "paper"\noverrides = { n_steps = 9000000 }\n'
     )
+    huge_suite = tmp_path / "huge.toml"
+    huge_suite.write_text(
+        'seeds = 1000000000\n[[optimizers]]\nname = "pso"\n[[scenarios]]\nname = "paper"\n'
+    )
+    big_seed_suite = tmp_path / "bigseed.toml"
+    big_seed_suite.write_text(
+        f'seeds = [{2**128}]\n[[optimizers]]\nname = "pso"\n[[scenarios]]\nname = "paper"\n'
+    )
+    results = tmp_path / "results"
+    (results / "runs").mkdir(parents=True)
     return {
         "out": str(tmp_path / "out"),
         "file": str(afile),
@@ -121,6 +151,9 @@ def places(tmp_path: Path) -> dict[str, str]:
         "bad_utf8": str(bad_utf8),
         "bad_toml": str(bad_toml),
         "big_suite": str(big_suite),
+        "huge_suite": str(huge_suite),
+        "big_seed_suite": str(big_seed_suite),
+        "results": str(results),
     }
 
 
@@ -153,11 +186,44 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(args, needle, places, t
     assert snapshot(tmp_path) == before  # nothing created, nothing overwritten
 
 
-def test_ctrl_c_exits_130_in_one_line_and_leaves_nothing_finished(tmp_path):
-    out = tmp_path / "run"
+def test_a_folder_that_is_not_writable_is_refused(tmp_path, monkeypatch, capsys):
+    # the tests may run as root, for whom every folder is writable: the permission is faked
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    real_access = os.access
+    monkeypatch.setattr(
+        "formation_bench.benchmarks.staging.os.access",
+        lambda path, mode: Path(path) != locked and real_access(path, mode),
+    )
+    assert main([*RUN, *SHORT, "--out", str(locked / "run")]) == 2
+    err = capsys.readouterr().err
+    assert (
+        err.strip()
+        == f"formation-bench run: error: --out {locked / 'run'}: {locked} is not writable"
+    )
+    assert list(locked.iterdir()) == []
+
+
+INTERRUPTED = [
+    # a run far too long to end by itself, into a new folder
+    (["run", "--optimizer", "modified-bso", "--no-trigger", "--set", "n_steps=100000"],
+     rb"[1-9][0-9]*/100000", False),
+    # the paper runs replacing an old folder: the old folder must survive the interruption
+    (["reproduce", "--seeds", "0", "1", "2", "--overwrite"], rb"[1-9][0-9]*/240", True),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("args", "running", "existing"), INTERRUPTED, ids=["run", "reproduce"])
+def test_ctrl_c_exits_130_in_one_line_and_leaves_nothing_finished(
+    args, running, existing, tmp_path
+):
+    out = tmp_path / "out"
+    if existing:
+        out.mkdir()
+        (out / "keep.txt").write_text("mine\n")
+    before = snapshot(tmp_path)
     process = subprocess.Popen(
-        [sys.executable, "-m", "formation_bench.benchmarks.cli", "run", "--optimizer",
-         "modified-bso", "--no-trigger", "--set", "n_steps=100000", "--progress",
+        [sys.executable, "-m", "formation_bench.benchmarks.cli", *args, "--progress",
          "--no-figures", "--out", str(out)],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
         # a test runner started in the background ignores SIGINT, and a child inherits that:
@@ -167,7 +233,7 @@ def test_ctrl_c_exits_130_in_one_line_and_leaves_nothing_finished(tmp_path):
     # interrupt once the closed loop is running: its progress bar counts solved instants
     assert process.stderr is not None
     seen = b""
-    while not re.search(rb"[1-9][0-9]*/100000", seen):
+    while not re.search(running, seen):
         ready, _, _ = select.select([process.stderr], [], [], 300)
         chunk = os.read(process.stderr.fileno(), 65536) if ready else b""
         assert chunk, f"the run ended or stalled before it started: {seen[-500:]!r}"
@@ -176,10 +242,10 @@ def test_ctrl_c_exits_130_in_one_line_and_leaves_nothing_finished(tmp_path):
     _, rest = process.communicate(timeout=120)
     err = (seen + rest).decode(errors="replace")
     assert process.returncode == 130, err[-500:]
-    assert err.strip().splitlines()[-1].strip().endswith("formation-bench run: interrupted")
+    last = err.strip().splitlines()[-1].strip()
+    assert last.endswith(f"formation-bench {args[0]}: interrupted"), last
     assert "Traceback" not in err
-    assert not out.exists()
-    assert not list(tmp_path.glob(".run.*"))
+    assert snapshot(tmp_path) == before  # no staging folder left, an old folder untouched
 
 
 def test_outputs_get_ordinary_permissions(tmp_path):

@@ -242,3 +242,47 @@ def test_the_kernel_cache_is_found_after_a_run():
         np.random.default_rng(0), Budget(max_evaluations=100),
     )  # fmt: skip
     assert kernels_cached()
+
+
+def documented_trace_columns() -> list[str]:
+    """The column names of the trace table in docs/benchmarks.md, in order."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "docs" / "benchmarks.md").read_text()
+    table = text.split("<!-- trace columns:", 1)[1].split("\n\n", 1)[0]
+    columns = []
+    for line in table.splitlines()[3:]:  # after the comment, the header and the rule
+        columns += re.findall(r"`([a-z0-9_]+)`", line.split("|")[1])
+    return columns
+
+
+def test_the_trace_columns_are_documented_as_written(tmp_path):
+    out = tmp_path / "run"
+    args = ["run", "--optimizer", "pso", "--no-figures", "--set", "n_steps=3"]
+    assert main([*args, "--set", "settle_time_s=0", "--out", str(out)]) == 0
+    written = list(pd.read_parquet(out / "trace.parquet").columns)
+    documented = documented_trace_columns()
+    # a sweep's traces add the budget after the trigger; the table shows that column too
+    assert documented.index("budget") == 3
+    assert [c for c in documented if c != "budget"] == written
+
+
+def test_help_texts_carry_no_markup(capsys):
+    for command in ([], ["run"], ["reproduce"], ["list"], ["sweep"], ["report"]):
+        with pytest.raises(SystemExit):
+            main([*command, "--help"])
+        text = capsys.readouterr().out
+        assert "usage: formation-bench" in text
+        for markup in ("``", ":func:", ":class:", ":mod:", ":meth:"):
+            assert markup not in text, (command, markup)
+
+
+def test_a_malformed_set_value_names_the_field_and_the_form(tmp_path, capsys):
+    argv = ["run", "--optimizer", "pso", "--set", "accel_bounds=(1,)", "--out", str(tmp_path)]
+    assert main(argv) == 2
+    assert capsys.readouterr().err == (
+        "formation-bench run: error: --set accel_bounds: expected a pair (lower, upper) of "
+        "numbers, got (1,)\n"
+    )
+

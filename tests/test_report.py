@@ -81,6 +81,12 @@ def test_report_compares_triggers_and_refuses_an_unknown_baseline(results, tmp_p
     assert code == 0
     assert "compared: trigger (baseline 'off')" in capsys.readouterr().out
     assert not (out / "figures").exists()
+    # two levels: the tests across all levels do not apply, and each file says so
+    for name in ("friedman", "ranks", "nemenyi"):
+        note = pd.read_csv(out / f"{name}.csv")
+        assert list(note.columns) == ["note"] and len(note) == 1
+        assert "3 or more levels" in note["note"][0]
+    assert len(pd.read_csv(out / "wilcoxon.csv")) > 0
     assert main(["report", str(results), "--baseline", "pso", "--overwrite"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1

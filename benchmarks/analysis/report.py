@@ -59,6 +59,18 @@ NOT_METRICS = frozenset(
 
 SIGNIFICANCE = 0.05
 
+NOT_APPLICABLE: dict[str, str] = {
+    "summary": "no results: the results folder holds no metric values",
+    "wilcoxon": "not applicable: no block holds the baseline and another level to pair with "
+    "it by seed",
+    "friedman": "not applicable: Friedman's test needs 3 or more levels of the compared factor",
+    "ranks": "not applicable: average ranks come with Friedman's test, which needs 3 or more "
+    "levels of the compared factor",
+    "nemenyi": "not applicable: the Nemenyi post-hoc test needs 3 or more levels of the "
+    "compared factor and seeds complete for every level",
+}
+"""The report's tables, each with the note its CSV file holds when no row applies."""
+
 
 class ReportError(ValueError):
     """A report that cannot be made as asked (one line, exit 2)."""
@@ -401,8 +413,11 @@ def make_report(
     suite = ", ".join(sorted(results["suite"].unique())) if "suite" in results else ""
     title = f"Sweep report: {suite}" if suite else "Sweep report"
     (folder / "report.md").write_text(to_markdown(report, results, title=title))
-    for name in ("summary", "wilcoxon", "friedman", "ranks", "nemenyi"):
-        getattr(report, name).to_csv(folder / f"{name}.csv", index=False)
+    for name, reason in NOT_APPLICABLE.items():
+        table = getattr(report, name)
+        # an empty CSV reads as a failure: a table that does not apply says why instead
+        written = table if len(table) else pd.DataFrame({"note": [reason]})
+        written.to_csv(folder / f"{name}.csv", index=False)
     if figures:
         write_figures(report, results, folder / "figures")
     headline = to_markdown(report, results, metrics=list(HEADLINE_METRICS), title=title)

@@ -34,6 +34,12 @@ from typing import Any
 
 import numpy as np
 
+from formation_bench.benchmarks.checks import (
+    MAX_SEED,
+    LimitError,
+    check_run,
+    check_seed_count,
+)
 from formation_bench.mpc.scenario import SCENARIOS, Scenario, get_scenario
 from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
 from formation_bench.plugins import loaded_plugins
@@ -424,15 +430,30 @@ class _Validator:
         if _is_int(seeds):
             if seeds < 1:
                 raise self.fail(("seeds",), f"a count must be >= 1, got {seeds}")
+            self.check_seed_count(seeds)
             return tuple(range(seeds))
         if isinstance(seeds, list) and seeds and all(_is_int(s) and s >= 0 for s in seeds):
+            self.check_seed_count(len(seeds))
             if len(set(seeds)) != len(seeds):
                 raise self.fail(("seeds",), "seeds must be distinct")
+            too_large = [s for s in seeds if s > MAX_SEED]
+            if too_large:
+                raise self.fail(
+                    ("seeds",),
+                    f"{too_large[0]} is more than 2**128 - 1 (a run's seed is a 128-bit "
+                    "SeedSequence entropy)",
+                )
             return tuple(seeds)
         raise self.fail(
             ("seeds",),
             f"must be a count >= 1 or a non-empty list of integers >= 0, got {seeds!r}",
         )
+
+    def check_seed_count(self, count: int) -> None:
+        try:
+            check_seed_count(count, "seeds")
+        except LimitError as err:
+            raise self.fail((), str(err)) from None
 
     def triggers(self) -> tuple[bool, ...]:
         triggers = self.data.get("triggers", [True])
@@ -579,8 +600,6 @@ class _Validator:
         budgets: tuple[tuple[int | None, int | None], ...],
     ) -> None:
         """Every combination must be a run that finishes (before any of them starts)."""
-        from formation_bench.benchmarks.checks import LimitError, check_run
-
         for scenario_entry in scenarios:
             scenario = get_scenario(
                 scenario_entry.name, **from_json_value(json.loads(scenario_entry.overrides))
