@@ -28,15 +28,15 @@ from formation_bench.benchmarks.analysis.paper import (
     format_table,
 )
 from formation_bench.benchmarks.checks import MAX_SEED, LimitError, check_run, check_seed_count
-from formation_bench.benchmarks.experiments.suite import effective_overrides, jsonable, short_value
 from formation_bench.benchmarks.outputs import write_metrics, write_text, write_trace
 from formation_bench.benchmarks.runner import (
     RunOutcome,
+    execute,
     kernels_cached,
-    run_closed_loop,
     write_figures,
     write_trigger_figure,
 )
+from formation_bench.benchmarks.spec import RunSpec
 from formation_bench.benchmarks.staging import OutputError, staged_folder
 from formation_bench.mpc.loop import ProgressCallback
 from formation_bench.mpc.reference import REFERENCE_PATHS
@@ -162,14 +162,18 @@ def _set_error(message: str, assignments: list[str]) -> str:
     return f"--set {written}: expected {match['rest']}"
 
 
-def _summary(metrics: dict[str, Any]) -> str:
-    distances = " ".join(f"{k}={v:.3f}" for k, v in metrics["distance_error_max_m"].items())
+def _summary(record: dict[str, Any]) -> str:
+    pairs = [c for c in record if c.startswith("distance_error_max_m_d")]
+    distances = " ".join(
+        f"{c.removeprefix('distance_error_max_m_')}={record[c]:.3f}" for c in pairs
+    )
+    solves = [record[c] for c in record if c.startswith("solves_uav")]
     return (
-        f"{metrics['optimizer']} {metrics['scenario']} trigger={metrics['trigger']} "
-        f"seed={metrics['seed']}: tracking max {metrics['tracking_error_max_m']:.3f} m, "
-        f"distance error max {distances} m, solves {metrics['solves_per_uav']}, "
-        f"median solve {1e3 * metrics['solve_time_median_s']:.2f} ms, "
-        f"wall {metrics['wall_time_s']:.1f} s"
+        f"{record['optimizer']} {record['scenario']} trigger={record['trigger']} "
+        f"seed={record['seed']}: tracking max {record['tracking_error_max_m']:.3f} m, "
+        f"distance error max {distances} m, solves {solves}, "
+        f"median solve {1e3 * record['solve_time_median_s']:.2f} ms, "
+        f"wall {record['wall_time_s']:.1f} s"
     )
 
 
@@ -224,22 +228,26 @@ def _budget(args: argparse.Namespace) -> Budget | None:
         raise UsageError(_message(err)) from None
 
 
-def labelled(name: str, default: Any, configured: Any) -> tuple[str, dict[str, Any]]:
-    """``name``, or ``name[field=value,...]`` when fields differ from the registered ones."""
-    changed = effective_overrides(default, configured)
-    changed.pop("name", None)
-    if not changed:
-        return name, changed
-    return name + "[" + ",".join(f"{k}={short_value(v)}" for k, v in changed.items()) + "]", changed
-
-
 def cmd_run(args: argparse.Namespace) -> int:
     scenario, optimizer = _build(args)
     budget = _budget(args)
     _check(scenario, optimizer, budget)
+    spec = RunSpec.of(
+        args.optimizer, optimizer, args.scenario, scenario,
+        trigger=args.trigger, seed=args.seed, budget=budget, plugins=plugins.loaded_plugins(),
+    )  # fmt: skip
     with _staged(args) as out:
-        outcome = _run_into(args, scenario, optimizer, budget, out)
-    print(_summary(outcome.metrics))
+        _compile_notice()
+        with _progress_bar(spec.optimizer_label, scenario.n_steps, args.progress) as progress:
+            outcome = execute(spec, progress=progress)
+        record = outcome.record.to_json()
+        write_metrics(out / "metrics.json", [record])
+        write_trace(out / "trace.parquet", outcome.frame)
+        if args.figures:
+            suffix = "trigger" if args.trigger else "no_trigger"
+            write_figures(outcome, out, suffix, (5, 6) if args.trigger else (3, 4))
+            write_trigger_figure(outcome, out, f"fig7_solve_instants_{suffix}.png")
+    print(_summary(record))
     print(f"wrote {args.out}/metrics.json, trace.parquet{' and figures' if args.figures else ''}")
     return 0
 
@@ -284,73 +292,31 @@ def _compile_notice() -> None:
         )
 
 
-def _run_into(
-    args: argparse.Namespace,
-    scenario: Scenario,
-    optimizer: Optimizer,
-    budget: Budget | None,
-    out: Path,
-) -> RunOutcome:
-    optimizer_label, optimizer_overrides = labelled(
-        args.optimizer, get_optimizer(args.optimizer), optimizer
-    )
-    scenario_label, scenario_overrides = labelled(
-        args.scenario, get_scenario(args.scenario), scenario
-    )
-    # an overridden scenario is named by what it is in the metrics, the trace and the titles
-    scenario = scenario.with_overrides(name=scenario_label)
-    _compile_notice()
-    with _progress_bar(optimizer_label, scenario.n_steps, args.progress) as progress:
-        outcome = run_closed_loop(
-            scenario,
-            optimizer_label,
-            optimizer,
-            trigger=args.trigger,
-            seed=args.seed,
-            budget=budget,
-            progress=progress,
-        )
-    outcome.metrics.update(
-        optimizer_name=args.optimizer,
-        optimizer_overrides=jsonable(optimizer_overrides),
-        scenario_name=args.scenario,
-        scenario_overrides=jsonable(scenario_overrides),
-        budget_max_evaluations=None if budget is None else budget.max_evaluations,
-        budget_max_iterations=None if budget is None else budget.max_iterations,
-    )
-    suffix = "trigger" if args.trigger else "no_trigger"
-    write_metrics(out / "metrics.json", outcome.metrics)
-    write_trace(out / "trace.parquet", outcome.frame)
-    if args.figures:
-        write_figures(outcome, out, suffix, (5, 6) if args.trigger else (3, 4))
-        write_trigger_figure(outcome, out, f"fig7_solve_instants_{suffix}.png")
-    return outcome
-
-
 def reproduce_one(
     seed: int, out: Path, *, figures: bool = True, progress: bool | None = None
 ) -> list[dict[str, Any]]:
-    """Both paper runs (without, then with trigger) for one seed; writes outputs to ``out``."""
+    """Both paper runs (without, then with trigger) for one seed; writes outputs to ``out``
+    and returns their records."""
     scenario = get_scenario("paper")
     optimizer = get_optimizer(DEFAULT_OPTIMIZER)
     outcomes: list[RunOutcome] = []
     for trigger in (False, True):
+        spec = RunSpec.of(
+            DEFAULT_OPTIMIZER, optimizer, "paper", scenario, trigger=trigger, seed=seed
+        )
         label = f"seed {seed}, {'with' if trigger else 'without'} trigger"
         with _progress_bar(label, scenario.n_steps, progress) as advance:
-            outcome = run_closed_loop(
-                scenario, DEFAULT_OPTIMIZER, optimizer, trigger=trigger, seed=seed,
-                progress=advance,
-            )  # fmt: skip
+            outcome = execute(spec, progress=advance)
         outcomes.append(outcome)
-        print(_summary(outcome.metrics), flush=True)
-    metrics = [o.metrics for o in outcomes]
-    write_metrics(out / "metrics.json", metrics)
+        print(_summary(outcome.record.to_json()), flush=True)
+    records = [o.record.to_json() for o in outcomes]
+    write_metrics(out / "metrics.json", records)
     write_trace(out / "trace.parquet", pd.concat([o.frame for o in outcomes], ignore_index=True))
     if figures:
         write_figures(outcomes[0], out, "no_trigger", (3, 4))
         write_figures(outcomes[1], out, "trigger", (5, 6))
         write_trigger_figure(outcomes[1], out, "fig7_solve_instants.png")
-    return metrics
+    return records
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:

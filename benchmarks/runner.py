@@ -1,30 +1,33 @@
-"""One closed-loop run end to end: simulate, measure, write outputs and figures."""
+"""One closed-loop run end to end: :func:`execute` turns a :class:`RunSpec` into a
+:class:`RunRecord` and a trace; the figures of one run are drawn here too."""
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from formation_bench.benchmarks.outputs import trace_frame
+from formation_bench.benchmarks.record import Provenance, RunDescription, RunRecord
+from formation_bench.benchmarks.spec import RunSpec
 from formation_bench.mpc.cost import batch_cost
 from formation_bench.mpc.loop import ProgressCallback, Trace, simulate
 from formation_bench.mpc.metrics import compute_metrics, pair_names
 from formation_bench.mpc.model import rollout
-from formation_bench.mpc.scenario import Scenario
-from formation_bench.optimizers.base import Budget, Optimizer
+from formation_bench.plugins import load_plugins
 
 
 @dataclass(frozen=True)
 class RunOutcome:
-    """A finished run: its trace, metrics, and trace table."""
+    """A finished run: its record, its trace, and the trace as a table."""
 
+    record: RunRecord
     trace: Trace
-    metrics: dict[str, Any]
     frame: pd.DataFrame
+    """The trace table (:func:`trace_table`)."""
 
 
 def kernels_cached() -> bool:
@@ -60,28 +63,39 @@ def warm_up_kernels() -> None:
     )
 
 
-def run_closed_loop(
-    scenario: Scenario,
-    optimizer_name: str,
-    optimizer: Optimizer,
-    *,
-    trigger: bool,
-    seed: int,
-    budget: Budget | None = None,
-    progress: ProgressCallback | None = None,
-) -> RunOutcome:
-    """Simulate one run and compute its metrics (``budget`` None: the optimiser's own)."""
+def execute(spec: RunSpec, *, progress: ProgressCallback | None = None) -> RunOutcome:
+    """Carry out one run: the one path of ``run``, ``reproduce`` and every run of a sweep."""
+    start = time.perf_counter()
+    # a fresh sweep worker knows only the built-in and entry-point optimisers
+    load_plugins(spec.plugins)
+    scenario, optimizer = spec.build()
     warm_up_kernels()
     trace = simulate(
         scenario,
         optimizer,
-        trigger=trigger,
-        seed=seed,
-        optimizer_name=optimizer_name,
-        budget=budget,
+        trigger=spec.trigger,
+        seed=spec.entropy,
+        optimizer_name=spec.optimizer_label,
+        budget=spec.budget,
         progress=progress,
     )
-    return RunOutcome(trace, compute_metrics(trace), trace_frame(trace))
+    metrics = compute_metrics(trace)
+    frame = trace_table(trace, spec)
+    record = RunRecord(
+        RunDescription.of(spec, scenario.n_steps, scenario.settle_time_s),
+        metrics,
+        Provenance.here(time.perf_counter() - start),
+    )
+    return RunOutcome(record, trace, frame)
+
+
+def trace_table(trace: Trace, spec: RunSpec) -> pd.DataFrame:
+    """The trace as a long table, labelled as the run's record is (seed, budget)."""
+    frame = trace_frame(trace)
+    # a 128-bit seed does not fit an int64 column: such a seed is stored as its decimal string
+    frame["seed"] = spec.seed if spec.seed < 2**63 else str(spec.seed)
+    frame.insert(frame.columns.get_loc("trigger") + 1, "budget", spec.budget_label)
+    return frame
 
 
 def write_figures(

@@ -82,6 +82,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         )
         for spec in pending:
             print(f"  {spec.key}  {spec.describe()}")
+            # what repeats this run exactly, on its own
+            print(f"    {spec.run_command(out=f'repeat-{spec.key}')}")
         return 0
     summary = run_sweep(
         suite,

@@ -1,12 +1,24 @@
-"""Metrics of one closed-loop run, computed from its :class:`~formation_bench.mpc.loop.Trace`."""
+"""Metrics of one closed-loop run, computed from its :class:`~formation_bench.mpc.loop.Trace`.
+
+:class:`Metrics` declares every metric once: its meaning, unit, whether it is a timing (and
+so differs between two runs of the same thing), and whether it is one value per run or one per
+UAV pair, UAV or trigger condition. :meth:`Metrics.columns` names every value as a column
+(``distance_error_max_m_d12``, ``solves_uav1``, ...); ``metrics.json``, the results store, the
+report and the notebook all read those columns.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import enum
+from collections.abc import Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from formation_bench.mpc.loop import Trace
+from formation_bench.mpc.trigger import TRIGGER_CONDITIONS
 
 
 def pair_names(n_uav: int) -> list[tuple[str, int, int]]:
@@ -56,8 +68,124 @@ def closed_loop_cost(trace: Trace) -> float:
     return float(scenario.period_s * np.sum(scenario.w_dst * formation + scenario.w_trj * tracking))
 
 
-def compute_metrics(trace: Trace) -> dict[str, Any]:
-    """The metrics of a run, as written to ``metrics.json``."""
+class Per(enum.Enum):
+    """What one declared metric has a value for."""
+
+    RUN = "run"
+    """One value: the column is the field's name."""
+    PAIR = "pair"
+    """One value per named UAV pair (:func:`pair_names`): ``FIELD_d12``, ``FIELD_d23``, ..."""
+    UAV = "uav"
+    """One value per UAV: ``FIELD_uav1``, ``FIELD_uav2``, ..."""
+    CONDITION = "condition"
+    """One value per trigger condition: ``FIELD_distance``, ``FIELD_tracking``, ..."""
+    SOLVE = "solve"
+    """A list with one value per solve, in one column named as the field."""
+
+
+def metric(doc: str, unit: str, *, per: Per = Per.RUN, timing: bool = False) -> Any:
+    """Declare a field of :class:`Metrics`: what it measures, its unit and its layout."""
+    return dataclasses.field(metadata={"doc": doc, "unit": unit, "per": per, "timing": timing})
+
+
+@dataclass(frozen=True)
+class Metrics:
+    """The metrics of one closed-loop run. Errors are taken after the settle time."""
+
+    tracking_error_max_m: float = metric(
+        "largest distance of the formation centre from the reference after the settle time", "m"
+    )
+    tracking_error_rms_m: float = metric(
+        "root mean square of that distance after the settle time", "m"
+    )
+    distance_error_max_m: dict[str, float] = metric(
+        "largest difference between a UAV pair's actual and desired distance after the settle "
+        "time",
+        "m",
+        per=Per.PAIR,
+    )
+    distance_error_max_m_max: float = metric(
+        "the largest of the pairs' distance errors after the settle time", "m"
+    )
+    solves: tuple[int, ...] = metric(
+        "solves of a UAV over the run (one per instant without the trigger)", "solves", per=Per.UAV
+    )
+    solves_total: int = metric("solves of all UAVs over the run", "solves")
+    trigger: dict[str, int] = metric(
+        "solves at which a trigger condition held (several may hold at one solve; the first "
+        "solve of every UAV counts as expiry)",
+        "solves",
+        per=Per.CONDITION,
+    )
+    closed_loop_cost: float = metric(
+        "eq. (11) summed over the UAVs and integrated along the flown trajectory from t = 0",
+        "cost",
+    )
+    nfev_total: int = metric("cost evaluations of all solves", "evaluations")
+    solve_failures: int = metric(
+        "solves whose optimiser reported failure (the UAV kept its shifted plan)", "solves"
+    )
+    solve_time_median_s: float = metric("median wall time of a solve", "s", timing=True)
+    solve_time_p95_s: float = metric("95th percentile of a solve's wall time", "s", timing=True)
+    solve_time_max_s: float = metric("longest solve", "s", timing=True)
+    solve_times_s: tuple[float, ...] = metric(
+        "wall time of every solve, in solve order", "s", per=Per.SOLVE, timing=True
+    )
+    wall_time_s: float = metric("wall time of the closed loop", "s", timing=True)
+
+    def columns(self) -> dict[str, Any]:
+        """Every value under its column name, in declaration order."""
+        out: dict[str, Any] = {}
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            per = field.metadata["per"]
+            if per in (Per.PAIR, Per.CONDITION):
+                out.update({f"{field.name}_{item}": v for item, v in value.items()})
+            elif per is Per.UAV:
+                out.update({f"{field.name}_uav{k}": v for k, v in enumerate(value, start=1)})
+            else:
+                out[field.name] = list(value) if per is Per.SOLVE else value
+        return out
+
+
+@dataclass(frozen=True)
+class MetricInfo:
+    """One declared metric, for documentation and for telling metric columns apart."""
+
+    name: str
+    doc: str
+    unit: str
+    per: Per
+    timing: bool
+
+    def owns(self, column: str) -> bool:
+        """Whether ``column`` holds a value of this metric."""
+        if self.per in (Per.RUN, Per.SOLVE):
+            return column == self.name
+        stem = f"{self.name}_uav" if self.per is Per.UAV else f"{self.name}_"
+        return column.startswith(stem) and column != self.name and not _declared(column)
+
+
+def metric_infos() -> Iterator[MetricInfo]:
+    """Every declared metric, in declaration order."""
+    for field in dataclasses.fields(Metrics):
+        yield MetricInfo(field.name, **field.metadata)
+
+
+def _declared(column: str) -> bool:
+    return column in {f.name for f in dataclasses.fields(Metrics)}
+
+
+def metric_of(column: str) -> MetricInfo | None:
+    """The declared metric a column holds a value of, or None if it holds none."""
+    for info in metric_infos():
+        if info.owns(column):
+            return info
+    return None
+
+
+def compute_metrics(trace: Trace) -> Metrics:
+    """The metrics of a run."""
     scenario = trace.scenario
     settled = trace.times >= scenario.settle_time_s - 1e-9
     if not np.any(settled):
@@ -67,24 +195,23 @@ def compute_metrics(trace: Trace) -> dict[str, Any]:
         )
     tracking = tracking_error(trace)[settled]
     solve_times = trace.solve_time_s[trace.solved]
-    return {
-        "optimizer": trace.optimizer,
-        "scenario": scenario.name,
-        "trigger": bool(trace.trigger),
-        "seed": int(trace.seed),
-        "steps": int(scenario.n_steps),
-        "settle_time_s": float(scenario.settle_time_s),
-        "tracking_error_max_m": float(tracking.max()),
-        "tracking_error_rms_m": float(np.sqrt(np.mean(tracking**2))),
-        "distance_error_max_m": {
-            name: float(err[settled].max()) for name, err in distance_errors(trace).items()
-        },
-        "solves_per_uav": [int(n) for n in trace.solved.sum(axis=0)],
-        "closed_loop_cost": closed_loop_cost(trace),
-        "solve_time_median_s": float(np.median(solve_times)),
-        "solve_time_p95_s": float(np.percentile(solve_times, 95)),
-        "solve_time_max_s": float(solve_times.max()),
-        "nfev_total": int(trace.nfev.sum()),
-        "solve_failures": int(trace.solve_failed.sum()),
-        "wall_time_s": float(trace.wall_time_s),
-    }
+    distances = {name: float(err[settled].max()) for name, err in distance_errors(trace).items()}
+    solves = tuple(int(n) for n in trace.solved.sum(axis=0))
+    by_condition = trace.reasons[trace.solved].sum(axis=0)
+    return Metrics(
+        tracking_error_max_m=float(tracking.max()),
+        tracking_error_rms_m=float(np.sqrt(np.mean(tracking**2))),
+        distance_error_max_m=distances,
+        distance_error_max_m_max=float(max(distances.values())),
+        solves=solves,
+        solves_total=int(sum(solves)),
+        trigger={name: int(by_condition[k]) for k, name in enumerate(TRIGGER_CONDITIONS)},
+        closed_loop_cost=closed_loop_cost(trace),
+        nfev_total=int(trace.nfev.sum()),
+        solve_failures=int(trace.solve_failed.sum()),
+        solve_time_median_s=float(np.median(solve_times)),
+        solve_time_p95_s=float(np.percentile(solve_times, 95)),
+        solve_time_max_s=float(solve_times.max()),
+        solve_times_s=tuple(float(t) for t in solve_times),
+        wall_time_s=float(trace.wall_time_s),
+    )

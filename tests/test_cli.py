@@ -8,24 +8,9 @@ import pandas as pd
 import pytest
 
 from formation_bench.benchmarks.cli import main, parse_value
+from formation_bench.benchmarks.record import is_metric_column, record_columns
+from formation_bench.mpc.metrics import metric_infos, metric_of
 
-METRIC_KEYS = {
-    "optimizer",
-    "scenario",
-    "trigger",
-    "seed",
-    "steps",
-    "settle_time_s",
-    "tracking_error_max_m",
-    "tracking_error_rms_m",
-    "distance_error_max_m",
-    "solves_per_uav",
-    "closed_loop_cost",
-    "solve_time_median_s",
-    "solve_time_p95_s",
-    "nfev_total",
-    "wall_time_s",
-}
 SHORT = ["--set", "n_steps=25", "--set", "settle_time_s=1.0", "--set", "max_iterations=8"]
 
 
@@ -49,11 +34,17 @@ def test_short_run_writes_metrics_trace_and_figures(tmp_path):
         str(out),
     )
     assert result.returncode == 0, result.stderr
-    metrics = json.loads((out / "metrics.json").read_text())
-    assert set(metrics) >= METRIC_KEYS
-    assert metrics["trigger"] is False and metrics["seed"] == 3 and metrics["steps"] == 25
-    assert metrics["solves_per_uav"] == [25, 25, 25]
-    assert metrics["nfev_total"] > 0
+    (record,) = json.loads((out / "metrics.json").read_text())
+    # every column is declared, and every declared metric and record column is there
+    described = [name for name, _, _ in record_columns()]
+    assert all(c in described or is_metric_column(c) for c in record)
+    assert set(described) <= set(record)
+    assert {metric_of(c).name for c in record if is_metric_column(c)} == {
+        info.name for info in metric_infos()
+    }
+    assert record["trigger"] is False and record["seed"] == 3 and record["steps"] == 25
+    assert [record[f"solves_uav{k}"] for k in (1, 2, 3)] == [25, 25, 25]
+    assert record["nfev_total"] > 0
     trace = pd.read_parquet(out / "trace.parquet")
     assert len(trace) == 26 * 3
     assert trace["solved"].sum() == 75
@@ -180,7 +171,7 @@ def test_a_sweep_run_is_repeated_exactly_by_run_with_its_entropy_and_budget(tmp_
          "--out", str(tmp_path / "run")]
     )  # fmt: skip
     assert code == 0
-    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    (metrics,) = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert metrics["scenario"] == "paper[n_steps=12,settle_time_s=1.0]"
     assert metrics["scenario_overrides"] == {"n_steps": 12, "settle_time_s": 1.0}
     assert metrics["optimizer"] == "modified-bso[population_size=12]"
@@ -188,8 +179,8 @@ def test_a_sweep_run_is_repeated_exactly_by_run_with_its_entropy_and_budget(tmp_
     assert metrics["tracking_error_max_m"] == row["tracking_error_max_m"]
     assert metrics["closed_loop_cost"] == row["closed_loop_cost"]
     assert metrics["nfev_total"] == row["nfev_total"]
-    for name, value in metrics["distance_error_max_m"].items():
-        assert value == row[f"distance_error_max_m_{name}"]
+    for name in ("d12", "d23", "d31"):
+        assert metrics[f"distance_error_max_m_{name}"] == row[f"distance_error_max_m_{name}"]
     assert (tmp_path / "run" / "trace.parquet").is_file()
     assert not list((tmp_path / "run").glob("*.png"))
 
@@ -263,9 +254,7 @@ def test_the_trace_columns_are_documented_as_written(tmp_path):
     assert main([*args, "--set", "settle_time_s=0", "--out", str(out)]) == 0
     written = list(pd.read_parquet(out / "trace.parquet").columns)
     documented = documented_trace_columns()
-    # a sweep's traces add the budget after the trigger; the table shows that column too
-    assert documented.index("budget") == 3
-    assert [c for c in documented if c != "budget"] == written
+    assert documented == written
 
 
 def test_help_texts_carry_no_markup(capsys):
@@ -286,3 +275,12 @@ def test_a_malformed_set_value_names_the_field_and_the_form(tmp_path, capsys):
         "numbers, got (1,)\n"
     )
 
+
+def test_the_record_columns_are_documented_as_declared():
+    from pathlib import Path
+
+    from formation_bench.benchmarks.record import columns_table
+
+    text = (Path(__file__).parents[1] / "docs" / "benchmarks.md").read_text()
+    documented = text.split("<!-- record columns:", 1)[1].split("\n", 1)[1].split("\n\n", 1)[0]
+    assert documented == columns_table()

@@ -277,7 +277,7 @@ def test_forced_failure_falls_back_to_the_shifted_plan_and_is_counted(name, over
     metrics = compute_metrics(trace)
     assert trace.solved[0].all()
     assert np.array_equal(trace.solve_failed, trace.solved)  # every solve failed ...
-    assert metrics["solve_failures"] == int(trace.solved.sum()) > 0
+    assert metrics.solve_failures == int(trace.solved.sum()) > 0
     # ... and every UAV flew its shifted previous plan: the zero-control coasting plan of t0
     np.testing.assert_array_equal(trace.controls, 0.0)
     assert np.all(np.isfinite(trace.states))
@@ -320,7 +320,7 @@ def test_cli_runs_both_baselines_with_and_without_trigger(tmp_path, capfd):
             out, err = capfd.readouterr()
             assert err == ""  # quiet: nothing from IPOPT or OSQP on either stream
             assert out.count("\n") == 2  # the summary line and the "wrote" line only
-            metrics = json.loads((out_dir / "metrics.json").read_text())
+            (metrics,) = json.loads((out_dir / "metrics.json").read_text())
             assert metrics["optimizer"] == name
             assert metrics["trigger"] is (flag == "--trigger")
             assert metrics["solve_failures"] == 0

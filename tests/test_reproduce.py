@@ -17,8 +17,9 @@ def test_reproduce_writes_both_runs_and_the_table(tmp_path, capsys):
     assert all(
         m["steps"] == 240 and m["seed"] == 4 and m["optimizer"] == "modified-bso" for m in metrics
     )
-    assert metrics[0]["solves_per_uav"] == [240, 240, 240]
-    assert all(n < 240 for n in metrics[1]["solves_per_uav"])
+    solves = [[m[f"solves_uav{k}"] for k in (1, 2, 3)] for m in metrics]
+    assert solves[0] == [240, 240, 240]
+    assert all(n < 240 for n in solves[1])
     trace = pd.read_parquet(out / "trace.parquet")
     assert len(trace) == 2 * 241 * 3
     assert set(trace["trigger"]) == {False, True}
@@ -37,18 +38,28 @@ def test_reproduce_writes_both_runs_and_the_table(tmp_path, capsys):
         assert row["holds"] == (row["measured"] <= row["paper"])
 
 
+def distance_errors(*values: float) -> dict[str, float]:
+    return {
+        f"distance_error_max_m_{p}": v for p, v in zip(("d12", "d23", "d31"), values, strict=True)
+    }
+
+
+def solves(*values: int) -> dict[str, int]:
+    return {f"solves_uav{k}": v for k, v in enumerate(values, start=1)}
+
+
 def test_comparison_rows_read_the_right_metrics():
     fake = [
         {
             "trigger": False,
             "tracking_error_max_m": 1.3,
-            "distance_error_max_m": {"d12": 0.1, "d23": 0.2, "d31": 0.3},
+            **distance_errors(0.1, 0.2, 0.3),
         },
         {
             "trigger": True,
             "tracking_error_max_m": 1.0,
-            "distance_error_max_m": {"d12": 0.31, "d23": 0.3, "d31": 0.2},
-            "solves_per_uav": [161, 160, 10],
+            **distance_errors(0.31, 0.3, 0.2),
+            **solves(161, 160, 10),
         },
     ]
     holds = {(r["run"], r["figure"]): (r["measured"], r["holds"]) for r in comparison_rows(fake)}
@@ -63,18 +74,18 @@ def test_comparison_rows_read_the_right_metrics():
 def test_seed_table_counts_holds_per_figure():
     from formation_bench.benchmarks.analysis.paper import format_seed_table
 
-    def run(track, solves):
+    def run(track, per_uav):
         return [
             {
                 "trigger": False,
                 "tracking_error_max_m": track,
-                "distance_error_max_m": {"d12": 0.1, "d23": 0.1, "d31": 0.1},
+                **distance_errors(0.1, 0.1, 0.1),
             },
             {
                 "trigger": True,
                 "tracking_error_max_m": 1.0,
-                "distance_error_max_m": {"d12": 0.1, "d23": 0.1, "d31": 0.1},
-                "solves_per_uav": solves,
+                **distance_errors(0.1, 0.1, 0.1),
+                **solves(*per_uav),
             },
         ]
 

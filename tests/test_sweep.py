@@ -12,12 +12,12 @@ import pytest
 
 from formation_bench.benchmarks.experiments.store import (
     ResultStore,
-    is_timing_column,
     load_results,
     load_traces,
 )
 from formation_bench.benchmarks.experiments.suite import parse_suite
 from formation_bench.benchmarks.experiments.sweep import SweepError, run_sweep
+from formation_bench.benchmarks.record import is_timing_column
 from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer
 from formation_bench.optimizers.registry import RegisteredOptimizer
 
@@ -234,7 +234,7 @@ def test_results_read_back_as_one_frame(reference):
 def test_the_recorded_commit_is_the_installed_code_not_the_current_directory(tmp_path, monkeypatch):
     import subprocess
 
-    from formation_bench.benchmarks.experiments.store import git_info
+    from formation_bench.benchmarks.provenance import git_info
 
     other = tmp_path / "unrelated"
     other.mkdir()

@@ -4,9 +4,10 @@ import pandas as pd
 import pytest
 
 from formation_bench.benchmarks.cli import main
-from formation_bench.benchmarks.experiments.store import is_timing_column, load_results
+from formation_bench.benchmarks.experiments.store import load_results
 from formation_bench.benchmarks.experiments.suite import parse_suite
 from formation_bench.benchmarks.experiments.sweep import SweepError, run_sweep
+from formation_bench.benchmarks.record import is_timing_column
 
 distributed = pytest.importorskip("dask.distributed")
 

@@ -11,9 +11,10 @@ import pandas as pd
 import psutil
 import pytest
 
-from formation_bench.benchmarks.experiments.store import is_timing_column, load_results
+from formation_bench.benchmarks.experiments.store import load_results
 from formation_bench.benchmarks.experiments.suite import load_suite
 from formation_bench.benchmarks.experiments.sweep import run_sweep
+from formation_bench.benchmarks.record import is_timing_column
 
 SUITE = """\
 name = "kill"

@@ -11,14 +11,13 @@ import pytest
 from formation_bench.benchmarks.cli import main
 from formation_bench.benchmarks.experiments.suite import (
     SuiteError,
-    canonical_json,
-    config_of,
     load_suite,
     parse_suite,
-    sha256_hex,
     shipped_suites,
 )
 from formation_bench.benchmarks.experiments.sweep import execute_run
+from formation_bench.benchmarks.record import is_metric_column, is_timing_column
+from formation_bench.benchmarks.spec import canonical_json, config_of, sha256_hex
 from formation_bench.mpc.loop import simulate
 from formation_bench.mpc.metrics import compute_metrics
 from formation_bench.optimizers import OPTIMIZERS
@@ -101,13 +100,31 @@ def test_a_sweep_run_is_simulate_with_the_identity_entropy():
     assert result.error is None
     scenario, optimizer = run.build()
     trace = simulate(scenario, optimizer, trigger=run.trigger, seed=run.entropy, budget=run.budget)
-    metrics = compute_metrics(trace)
+    metrics = compute_metrics(trace).columns()
     assert result.row["seed"] == run.seed and result.row["seed_entropy"] == str(run.entropy)
-    assert result.row["tracking_error_max_m"] == metrics["tracking_error_max_m"]
-    assert result.row["nfev_total"] == metrics["nfev_total"]
-    assert result.row["solves_total"] == sum(metrics["solves_per_uav"])
-    assert result.row["distance_error_max_m_d31"] == metrics["distance_error_max_m"]["d31"]
+    compared = [c for c in metrics if not is_timing_column(c)]
+    assert len(compared) >= 15
+    assert {c: result.row[c] for c in compared} == {c: metrics[c] for c in compared}
+    assert result.row["solves_total"] == sum(result.row[f"solves_uav{k}"] for k in (1, 2, 3))
     assert len(result.row["solve_times_s"]) == result.row["solves_total"]
+
+
+def test_the_recorded_command_repeats_a_sweep_run_exactly(tmp_path):
+    import shlex
+
+    suite = parse(GOOD)
+    # a run with overrides on both sides and a budget: every part of the command is used
+    run = next(r for r in suite.runs() if r.budget is not None and r.optimizer_overrides != "{}")
+    row = execute_run(run).row
+    argv = shlex.split(row["command"])
+    assert argv[0] == "formation-bench" and argv[-2] == "--out"
+    out = tmp_path / "again"
+    assert main([*argv[1:-1], str(out), "--no-figures"]) == 0
+    (record,) = json.loads((out / "metrics.json").read_text())
+    compared = [c for c in row if is_metric_column(c) and not is_timing_column(c)]
+    assert len(compared) >= 15
+    assert {c: record[c] for c in compared} == {c: row[c] for c in compared}
+    assert record["seed"] == run.entropy and record["config_hash"] == row["config_hash"]
 
 
 @pytest.mark.parametrize(
@@ -274,7 +291,7 @@ def test_entropy_is_128_bits_and_key_is_stable():
 def test_every_registered_configuration_hashes_the_same_in_any_process():
     code = (
         "from formation_bench.optimizers import OPTIMIZERS; "
-        "from formation_bench.benchmarks.experiments.suite import config_of, canonical_json;"
+        "from formation_bench.benchmarks.spec import config_of, canonical_json;"
         "import hashlib; print({n: hashlib.sha256(canonical_json(config_of(r.optimizer)).encode())"
         ".hexdigest() for n, r in sorted(OPTIMIZERS.items())})"
     )

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -47,23 +46,6 @@ def suite_runs(results: pd.DataFrame, suite: str) -> pd.DataFrame:
     return results[results["suite"] == suite].reset_index(drop=True)
 
 
-def nested_metrics(row: pd.Series) -> dict[str, Any]:
-    """A stored (flat) row back in the ``metrics.json`` form that
-    :mod:`formation_bench.benchmarks.analysis.paper` reads."""
-    pairs = {
-        c.removeprefix("distance_error_max_m_"): row[c]
-        for c in row.index
-        if c.startswith("distance_error_max_m_d")
-    }
-    uavs = sorted((c for c in row.index if c.startswith("solves_uav")), key=lambda c: int(c[10:]))
-    return {
-        "trigger": bool(row["trigger"]),
-        "tracking_error_max_m": float(row["tracking_error_max_m"]),
-        "distance_error_max_m": {k: float(v) for k, v in pairs.items()},
-        "solves_per_uav": [int(row[c]) for c in uavs],
-    }
-
-
 def paper_figures_table(runs: pd.DataFrame) -> pd.DataFrame:
     """Every figure the paper reports beside its median and worst value over the seeds."""
     rows = []
@@ -71,7 +53,7 @@ def paper_figures_table(runs: pd.DataFrame) -> pd.DataFrame:
         subset = runs[runs["trigger"] == figure.trigger]
         if subset.empty:
             continue
-        values = np.array([figure.measured(nested_metrics(r)) for _, r in subset.iterrows()])
+        values = np.array([figure.measured(r) for _, r in subset.iterrows()])
         rows.append(
             {
                 "run": "with trigger" if figure.trigger else "without trigger",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,41 +19,40 @@ class PaperFigure:
     """The paper's bound (the metric must be <= it)."""
     unit: str
     """Unit of the bound, for the table."""
-    key: str
-    """Key of the metric in ``metrics.json``."""
-    item: str | int | None = None
-    """Pair name (``distance_error_max_m``) or UAV index (``solves_per_uav``), if any."""
+    column: str
+    """The record's column it bounds (:class:`~formation_bench.benchmarks.record.RunRecord`)."""
 
-    def measured(self, metrics: dict[str, Any]) -> float:
-        value = metrics[self.key]
-        return float(value if self.item is None else value[self.item])
+    def measured(self, record: Mapping[str, Any]) -> float:
+        """The value of a run's record (a ``metrics.json`` entry or a stored row)."""
+        return float(record[self.column])
 
 
 PAPER_FIGURES: tuple[PaperFigure, ...] = (
     PaperFigure(False, "tracking error max", 1.25, "m", "tracking_error_max_m"),
-    PaperFigure(False, "d12 error max", 0.2, "m", "distance_error_max_m", "d12"),
-    PaperFigure(False, "d23 error max", 0.2, "m", "distance_error_max_m", "d23"),
-    PaperFigure(False, "d31 error max", 0.2, "m", "distance_error_max_m", "d31"),
+    PaperFigure(False, "d12 error max", 0.2, "m", "distance_error_max_m_d12"),
+    PaperFigure(False, "d23 error max", 0.2, "m", "distance_error_max_m_d23"),
+    PaperFigure(False, "d31 error max", 0.2, "m", "distance_error_max_m_d31"),
     PaperFigure(True, "tracking error max", 1.4, "m", "tracking_error_max_m"),
-    PaperFigure(True, "d12 error max", 0.3, "m", "distance_error_max_m", "d12"),
-    PaperFigure(True, "d23 error max", 0.3, "m", "distance_error_max_m", "d23"),
-    PaperFigure(True, "d31 error max", 0.25, "m", "distance_error_max_m", "d31"),
+    PaperFigure(True, "d12 error max", 0.3, "m", "distance_error_max_m_d12"),
+    PaperFigure(True, "d23 error max", 0.3, "m", "distance_error_max_m_d23"),
+    PaperFigure(True, "d31 error max", 0.25, "m", "distance_error_max_m_d31"),
     # The paper reports 157/155/160 solves of 240 and claims at most two thirds.
-    PaperFigure(True, "UAV 1 solves (paper: 157)", 160, "of 240", "solves_per_uav", 0),
-    PaperFigure(True, "UAV 2 solves (paper: 155)", 160, "of 240", "solves_per_uav", 1),
-    PaperFigure(True, "UAV 3 solves (paper: 160)", 160, "of 240", "solves_per_uav", 2),
+    PaperFigure(True, "UAV 1 solves (paper: 157)", 160, "of 240", "solves_uav1"),
+    PaperFigure(True, "UAV 2 solves (paper: 155)", 160, "of 240", "solves_uav2"),
+    PaperFigure(True, "UAV 3 solves (paper: 160)", 160, "of 240", "solves_uav3"),
 )
 
 
 def comparison_rows(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per paper figure: run, the paper's bound, the measured value, whether it holds."""
-    by_trigger = {bool(m["trigger"]): m for m in runs}
+    """One row per paper figure for a seed's two run records: run, the paper's bound, the
+    measured value, whether it holds."""
+    by_trigger = {bool(r["trigger"]): r for r in runs}
     rows = []
     for figure in PAPER_FIGURES:
-        metrics = by_trigger.get(figure.trigger)
-        if metrics is None:
+        record = by_trigger.get(figure.trigger)
+        if record is None:
             continue
-        value = figure.measured(metrics)
+        value = figure.measured(record)
         rows.append(
             {
                 "run": "with trigger" if figure.trigger else "without trigger",

@@ -29,6 +29,7 @@ import pandas as pd
 
 from formation_bench.benchmarks.analysis import stats
 from formation_bench.benchmarks.experiments.store import load_results
+from formation_bench.benchmarks.record import is_metric_column
 
 FACTORS = ("optimizer", "trigger", "budget", "scenario")
 """Factors a report can compare, in the order the default choice tries them."""
@@ -43,19 +44,6 @@ HEADLINE_METRICS = (
     "nfev_total",
 )
 """Metrics printed on the terminal and plotted; the files hold every metric."""
-
-NOT_METRICS = frozenset(
-    {
-        "seed",
-        "steps",
-        "settle_time_s",
-        "budget_max_evaluations",
-        "budget_max_iterations",
-        "run_time_s",
-        "worker_pid",
-    }
-)
-"""Numeric columns that describe the run rather than measure it."""
 
 SIGNIFICANCE = 0.05
 
@@ -77,12 +65,12 @@ class ReportError(ValueError):
 
 
 def metric_columns(frame: pd.DataFrame) -> list[str]:
-    """Numeric metric columns: the headline ones first, then the rest in stored order."""
+    """The declared metrics with one number per run: the headline ones first, then the rest
+    in stored order."""
     numeric = [
         c
         for c in frame.columns
-        if c not in NOT_METRICS
-        and c not in FACTORS
+        if is_metric_column(c)
         and pd.api.types.is_numeric_dtype(frame[c])
         and not pd.api.types.is_bool_dtype(frame[c])
     ]
@@ -292,6 +280,22 @@ def to_markdown(
     return "\n".join(lines).rstrip() + "\n"
 
 
+def repeat_section(results: pd.DataFrame) -> str:
+    """How to repeat any run of the report on its own, with the first run's command."""
+    if "command" not in results or results.empty:
+        return ""
+    first = results.iloc[0]
+    return (
+        "\n## Repeating a run\n\n"
+        "Every run's row (`runs/<run_key>.parquet`, column `command`) holds the "
+        "`formation-bench run` command that repeats it exactly: the same configuration, "
+        "budget and random streams (its `--seed` is the run's SeedSequence entropy). "
+        f"The first run here ({first['optimizer']}, {first['scenario']}, trigger "
+        f"{'on' if first['trigger'] else 'off'}, seed {first['seed']}):\n\n"
+        f"```\n{first['command']}\n```\n"
+    )
+
+
 def _select(table: pd.DataFrame, block_key: dict[str, str], metric: str) -> pd.DataFrame:
     if table.empty:
         return table
@@ -412,7 +416,8 @@ def make_report(
     folder.mkdir(parents=True, exist_ok=True)
     suite = ", ".join(sorted(results["suite"].unique())) if "suite" in results else ""
     title = f"Sweep report: {suite}" if suite else "Sweep report"
-    (folder / "report.md").write_text(to_markdown(report, results, title=title))
+    markdown = to_markdown(report, results, title=title) + repeat_section(results)
+    (folder / "report.md").write_text(markdown)
     for name, reason in NOT_APPLICABLE.items():
         table = getattr(report, name)
         # an empty CSV reads as a failure: a table that does not apply says why instead

@@ -7,7 +7,7 @@ Layout of a results folder ``DIR``::
     DIR/traces/<key>.parquet     the per-instant trace, when the suite asks for traces
 
 ``<key>`` is the hash of the run's identity
-(:attr:`formation_bench.benchmarks.experiments.suite.RunSpec.key`).
+(:attr:`formation_bench.benchmarks.spec.RunSpec.key`).
 Every file is written to a temporary name and renamed, and a trace is written
 before its run row, so a run row exists only for a finished run. On resume each
 row is read back whole; a file that cannot be read, holds the wrong run, was
@@ -23,17 +23,12 @@ reads the same files directly::
 from __future__ import annotations
 
 import contextlib
-import datetime as dt
 import fcntl
 import io
 import json
-import os
-import platform
-import subprocess
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -42,40 +37,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from formation_bench.benchmarks.outputs import atomic_write_bytes
+from formation_bench.benchmarks.record import RECORD_FORMAT, value_type
 
 MANIFEST = "manifest.json"
 RUNS = "runs"
 TRACES = "traces"
 LOCK = ".lock"
-
-PACKAGES = (
-    "formation-bench",
-    "numpy",
-    "numba",
-    "scipy",
-    "scikit-learn",
-    "pandas",
-    "pyarrow",
-    "joblib",
-    "dask",
-    "distributed",
-    "scikit-posthocs",
-    "statsmodels",
-    "seaborn",
-    "matplotlib",
-)
-
-INTEGER_COLUMNS = ("budget_max_evaluations", "budget_max_iterations")
-"""Nullable integer columns (None = not set)."""
-
-TIMING_COLUMNS = ("wall_time_s", "run_time_s", "finished_at", "worker_host", "worker_pid")
-"""Columns that measure time or place, and so differ between two runs of the same thing."""
-TIMING_PREFIXES = ("solve_time", "wall_time")
-
-
-def is_timing_column(name: str) -> bool:
-    """True for columns that are timings or bookkeeping (not reproducible bit for bit)."""
-    return name in TIMING_COLUMNS or name.startswith(TIMING_PREFIXES)
 
 
 class StoreError(RuntimeError):
@@ -158,7 +125,7 @@ class ResultStore:
         table = pa.Table.from_pylist([row])
         for k, column in enumerate(table.schema):
             if pa.types.is_null(column.type):  # all-None column: give it a real type
-                kind = pa.int64() if column.name in INTEGER_COLUMNS else pa.float64()
+                kind = _ARROW_TYPES.get(value_type(column.name), pa.float64())
                 table = table.set_column(k, column.name, table.column(k).cast(kind))
         atomic_write_bytes(self.run_path(key), _parquet_bytes(table))
 
@@ -191,6 +158,8 @@ class ResultStore:
             return RunStatus("corrupt", f"{type(err).__name__}: {err}")
         if row.get("run_key") != key:
             return RunStatus("corrupt", f"holds run {row.get('run_key')!r}")
+        if row.get("record_format") != RECORD_FORMAT:
+            return RunStatus("stale", "stored by a version with other result columns")
         if row.get("config_hash") != config_hash:
             return RunStatus("stale", "configuration changed since it ran")
         if need_trace:
@@ -207,6 +176,9 @@ class ResultStore:
         if not self.runs_dir.is_dir():
             return []
         return sorted(p.stem for p in self.runs_dir.glob("*.parquet"))
+
+
+_ARROW_TYPES = {int: pa.int64(), str: pa.string(), bool: pa.bool_()}
 
 
 def _parquet_bytes(table: pa.Table) -> bytes:
@@ -257,101 +229,3 @@ def load_traces(root: Path | str, keys: list[str] | None = None) -> pd.DataFrame
     if not frames:
         raise StoreError(f"{root} holds no traces (set trace = true in the suite)")
     return pd.concat(frames, ignore_index=True)
-
-
-# --- manifest facts ---------------------------------------------------------------------------
-
-
-def package_versions() -> dict[str, str | None]:
-    versions: dict[str, str | None] = {"python": platform.python_version()}
-    for name in PACKAGES:
-        try:
-            versions[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            versions[name] = None
-    return versions
-
-
-def git_info() -> dict[str, Any]:
-    """The commit of the installed formation-bench code, never of the current directory.
-
-    A regular install carries the commit it was built from (stamped by
-    setuptools-scm; ``dirty`` when built from a tree with uncommitted changes).
-    An editable install runs the source folder as it is now, so its HEAD and
-    dirty flag are read from that folder.
-    """
-    import formation_bench
-
-    try:
-        from formation_bench import _version
-
-        built: str | None = getattr(_version, "__commit_id__", None)
-    except ImportError:
-        built = None
-    version = formation_bench.__version__
-    info: dict[str, Any] = {
-        "version": version,
-        "commit": built.removeprefix("g") if built else None,
-        "dirty": ".d" in version.partition("+")[2] if built else None,
-        "source": "built",
-    }
-    source = _editable_source()
-    if source is None:
-        return info
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=source, capture_output=True, text=True,
-            timeout=10, check=True,
-        ).stdout.strip()  # fmt: skip
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"], cwd=source,
-            capture_output=True, text=True, timeout=10, check=True,
-        ).stdout.strip()  # fmt: skip
-    except (OSError, subprocess.SubprocessError):
-        return {**info, "commit": None, "dirty": None, "source": str(source)}
-    return {**info, "commit": commit, "dirty": bool(dirty), "source": str(source)}
-
-
-def _editable_source() -> Path | None:
-    """The source folder of an editable install (PEP 610's direct_url.json), else None."""
-    try:
-        text = metadata.distribution("formation-bench").read_text("direct_url.json")
-    except metadata.PackageNotFoundError:
-        return None
-    if not text:
-        return None
-    try:
-        direct = json.loads(text)
-    except json.JSONDecodeError:
-        return None
-    if not direct.get("dir_info", {}).get("editable"):
-        return None
-    url = str(direct.get("url", ""))
-    return Path(url.removeprefix("file://")) if url.startswith("file://") else None
-
-
-def machine_info() -> dict[str, Any]:
-    info: dict[str, Any] = {
-        "hostname": platform.node(),
-        "platform": platform.platform(),
-        "machine": platform.machine(),
-        "processor": platform.processor() or None,
-        "cpu_count": os.cpu_count(),
-    }
-    if hasattr(os, "sched_getaffinity"):
-        info["cpus_available"] = len(os.sched_getaffinity(0))
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                info["cpu_model"] = line.split(":", 1)[1].strip()
-                break
-    with contextlib.suppress(OSError, ValueError):
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemTotal"):
-                info["memory_gib"] = round(int(line.split()[1]) / 2**20, 1)
-                break
-    return info
-
-
-def now() -> str:
-    return dt.datetime.now(dt.UTC).isoformat(timespec="seconds")

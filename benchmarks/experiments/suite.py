@@ -21,9 +21,7 @@ the run is and never on where it sits in the queue or which worker runs it.
 from __future__ import annotations
 
 import dataclasses
-import enum
 import fnmatch
-import hashlib
 import json
 import math
 import re
@@ -32,23 +30,26 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from formation_bench.benchmarks.checks import (
     MAX_SEED,
     LimitError,
     check_run,
     check_seed_count,
 )
-from formation_bench.mpc.scenario import SCENARIOS, Scenario, get_scenario
-from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
+from formation_bench.benchmarks.spec import (
+    RunSpec,
+    canonical_json,
+    from_json_value,
+    labelled,
+    resolved_config_hash,
+    sha256_hex,
+)
+from formation_bench.mpc.scenario import SCENARIOS, get_scenario
+from formation_bench.optimizers import OPTIMIZERS, Budget, get_optimizer
 from formation_bench.plugins import loaded_plugins
 
 SUITES_DIR = Path(__file__).parent / "suites"
 """Where the shipped suites live."""
-
-IDENTITY_VERSION = 1
-"""Bumped if the identity's layout ever changes (it would re-key every run)."""
 
 TOP_LEVEL_FIELDS = ("name", "description", "seeds", "triggers", "budgets", "trace")
 TABLE_FIELDS = ("optimizers", "scenarios")
@@ -60,196 +61,6 @@ ALL_OPTIMIZERS = "*"
 
 class SuiteError(ValueError):
     """A suite file that cannot be used; the message names the file, line and allowed values."""
-
-
-# --- canonical JSON of configuration values --------------------------------------------------
-
-
-def jsonable(value: Any) -> Any:
-    """``value`` as plain JSON data (enums by value or lower-case name, tuples as lists)."""
-    if isinstance(value, enum.Enum):
-        return value.value if isinstance(value.value, str) else value.name.lower()
-    if isinstance(value, bool | str) or value is None:
-        return value
-    if isinstance(value, int | np.integer):
-        return int(value)
-    if isinstance(value, float | np.floating):
-        return float(value)
-    if isinstance(value, np.ndarray):
-        return jsonable(value.tolist())
-    if isinstance(value, list | tuple):
-        return [jsonable(v) for v in value]
-    if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return config_of(value)
-    return re.sub(r" at 0x[0-9a-fA-F]+", "", repr(value))  # no memory addresses: hashes repeat
-
-
-def canonical_json(data: Any) -> str:
-    """Compact JSON with sorted keys: equal data gives equal text."""
-    return json.dumps(jsonable(data), sort_keys=True, separators=(",", ":"), allow_nan=True)
-
-
-def sha256_hex(text: str) -> str:
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
-def config_of(obj: Any) -> dict[str, Any]:
-    """Every field of a config dataclass as JSON data, with its class name."""
-    fields = {f.name: jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    return {"class": type(obj).__qualname__, **fields}
-
-
-def effective_overrides(default: Any, configured: Any) -> dict[str, Any]:
-    """The fields of ``configured`` that differ from ``default`` (as JSON data).
-
-    So ``population_size = 30`` on a registered optimiser whose population is
-    already 30 is no override at all, and ``3`` equals ``3.0``.
-    """
-    changed = {}
-    for f in dataclasses.fields(configured):
-        new, old = jsonable(getattr(configured, f.name)), jsonable(getattr(default, f.name))
-        if new != old:
-            changed[f.name] = new
-    return changed
-
-
-def from_json_value(value: Any) -> Any:
-    """JSON/TOML data back to a field value: lists become tuples (dataclass fields are tuples)."""
-    if isinstance(value, list):
-        return tuple(from_json_value(v) for v in value)
-    if isinstance(value, dict):
-        return {k: from_json_value(v) for k, v in value.items()}
-    return value
-
-
-# --- runs ---------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    """One closed-loop run of a sweep: everything a worker needs, as plain data."""
-
-    suite: str
-    """Name of the suite it came from (recorded, not part of the identity)."""
-    optimizer_label: str
-    """Name of the optimiser configuration in results."""
-    optimizer_name: str
-    """Registered optimiser name."""
-    optimizer_overrides: str
-    """Canonical JSON of the config fields changed from the registered configuration."""
-    scenario_label: str
-    """Name of the scenario configuration in results."""
-    scenario_name: str
-    """Registered scenario name."""
-    scenario_overrides: str
-    """Canonical JSON of the scenario fields changed from the registered scenario."""
-    trigger: bool
-    """Event trigger on, or a solve at every instant."""
-    budget_max_evaluations: int | None
-    """Per-solve evaluation limit; both limits None = the optimiser's own default budget."""
-    budget_max_iterations: int | None
-    """Per-solve iteration limit."""
-    seed: int
-    """The user-facing seed (0, 1, ... from the suite)."""
-    trace: bool
-    """Also store the per-instant trace."""
-    config_hash: str
-    """SHA-256 of the fully resolved optimiser, scenario and budget: a stored result whose
-    hash differs was produced by a different configuration (changed code defaults) and is
-    redone."""
-    plugins: tuple[str, ...] = ()
-    """Plugin modules or files the worker loads before building the run (those the command
-    loaded with ``--plugin``); not part of the identity."""
-
-    @property
-    def budget(self) -> Budget | None:
-        if self.budget_max_evaluations is None and self.budget_max_iterations is None:
-            return None
-        return Budget(self.budget_max_evaluations, self.budget_max_iterations)
-
-    @property
-    def budget_label(self) -> str:
-        return budget_label(self.budget_max_evaluations, self.budget_max_iterations)
-
-    def identity(self) -> dict[str, Any]:
-        """What the run *is*: its result file name and random streams derive from this."""
-        return {
-            "v": IDENTITY_VERSION,
-            "optimizer": self.optimizer_name,
-            "optimizer_overrides": json.loads(self.optimizer_overrides),
-            "scenario": self.scenario_name,
-            "scenario_overrides": json.loads(self.scenario_overrides),
-            "trigger": self.trigger,
-            "budget": {
-                "max_evaluations": self.budget_max_evaluations,
-                "max_iterations": self.budget_max_iterations,
-            },
-            "seed": self.seed,
-        }
-
-    @property
-    def identity_json(self) -> str:
-        return canonical_json(self.identity())
-
-    @property
-    def key(self) -> str:
-        """24 hex digits of the identity's SHA-256: the result file's name."""
-        return sha256_hex(self.identity_json)[:24]
-
-    @property
-    def entropy(self) -> int:
-        """128-bit entropy of the run's SeedSequence, from the identity's SHA-256.
-
-        ``simulate(seed=entropy)`` spawns the UAVs' streams from
-        ``SeedSequence(entropy)``; ``formation-bench run --seed ENTROPY`` with the same
-        optimiser, scenario and overrides repeats the run exactly.
-        """
-        digest = hashlib.sha256(b"formation-bench run seed\0" + self.identity_json.encode())
-        return int.from_bytes(digest.digest()[:16], "big")
-
-    def build(self) -> tuple[Scenario, Optimizer]:
-        """The scenario and optimiser objects of this run."""
-        scenario_overrides = from_json_value(json.loads(self.scenario_overrides))
-        optimizer_overrides = from_json_value(json.loads(self.optimizer_overrides))
-        return (
-            get_scenario(self.scenario_name, **scenario_overrides),
-            get_optimizer(self.optimizer_name, **optimizer_overrides),
-        )
-
-    def describe(self) -> str:
-        return (
-            f"{self.optimizer_label} / {self.scenario_label} / "
-            f"trigger {'on' if self.trigger else 'off'} / {self.budget_label} / seed {self.seed}"
-        )
-
-
-def budget_label(max_evaluations: int | None, max_iterations: int | None) -> str:
-    """``default`` or e.g. ``max_evaluations=1200``."""
-    parts = [
-        f"{name}={value}"
-        for name, value in (
-            ("max_evaluations", max_evaluations),
-            ("max_iterations", max_iterations),
-        )
-        if value is not None
-    ]
-    return ",".join(parts) if parts else "default"
-
-
-def resolved_config_hash(scenario: Scenario, optimizer: Optimizer, budget: Budget | None) -> str:
-    """SHA-256 of everything that configures a run (see :attr:`RunSpec.config_hash`)."""
-    effective = budget if budget is not None else optimizer.default_budget
-    return sha256_hex(
-        canonical_json(
-            {
-                "scenario": config_of(scenario),
-                "optimizer": config_of(optimizer),
-                "budget": effective,
-            }
-        )
-    )
 
 
 # --- the suite ---------------------------------------------------------------------------------
@@ -308,23 +119,25 @@ class Suite:
                     config_hash = resolved_config_hash(scenario, optimizer, budget)
                     for trigger in self.triggers:
                         for seed in self.seeds:
+                            spec = RunSpec(
+                                suite=self.name,
+                                optimizer_label=optimizer_entry.label,
+                                optimizer_name=optimizer_entry.name,
+                                optimizer_overrides=optimizer_entry.overrides,
+                                scenario_label=scenario_entry.label,
+                                scenario_name=scenario_entry.name,
+                                scenario_overrides=scenario_entry.overrides,
+                                trigger=trigger,
+                                budget_max_evaluations=max_evaluations,
+                                budget_max_iterations=max_iterations,
+                                seed=seed,
+                                trace=self.trace,
+                                config_hash=config_hash,
+                                plugins=loaded_plugins(),
+                            )
+                            # seed 0 of two configurations must not share random numbers
                             runs.append(
-                                RunSpec(
-                                    suite=self.name,
-                                    optimizer_label=optimizer_entry.label,
-                                    optimizer_name=optimizer_entry.name,
-                                    optimizer_overrides=optimizer_entry.overrides,
-                                    scenario_label=scenario_entry.label,
-                                    scenario_name=scenario_entry.name,
-                                    scenario_overrides=scenario_entry.overrides,
-                                    trigger=trigger,
-                                    budget_max_evaluations=max_evaluations,
-                                    budget_max_iterations=max_iterations,
-                                    seed=seed,
-                                    trace=self.trace,
-                                    config_hash=config_hash,
-                                    plugins=loaded_plugins(),
-                                )
+                                dataclasses.replace(spec, seed_entropy=spec.identity_entropy())
                             )
         return runs
 
@@ -662,13 +475,9 @@ class _Validator:
     def entry(
         self, where: tuple[Any, ...], raw: dict[str, Any], name: str, default: Any, configured: Any
     ) -> Entry:
-        effective = effective_overrides(default, configured)
-        label = raw.get("label")
-        if label is None:
-            label = name
-            if effective:
-                label += "[" + ",".join(f"{k}={short_value(v)}" for k, v in effective.items()) + "]"
-        elif not isinstance(label, str) or not label:
+        derived, effective = labelled(name, default, configured)
+        label = raw.get("label", derived)
+        if not isinstance(label, str) or not label:
             raise self.fail((*where, "label"), f"must be a non-empty string, got {label!r}")
         return Entry(label, name, canonical_json(effective))
 
@@ -689,11 +498,6 @@ class _Validator:
                     f"{entries[configs[entry.name, entry.overrides]].label!r}",
                 )
             configs[entry.name, entry.overrides] = k
-
-
-def short_value(value: Any) -> str:
-    """A field value as it appears in a label: compact JSON without quotes."""
-    return json.dumps(value, separators=(",", ":")).strip('"')
 
 
 def _is_int(value: Any) -> bool:

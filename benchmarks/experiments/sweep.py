@@ -9,7 +9,7 @@ two sweeps from writing into it at once.
 
 A run's random streams come from ``SeedSequence(entropy)`` with ``entropy``
 derived from the run's identity
-(:attr:`formation_bench.benchmarks.experiments.suite.RunSpec.entropy`), so
+(:meth:`formation_bench.benchmarks.spec.RunSpec.identity_entropy`), so
 results do not depend on queue order, worker count or which worker ran what.
 """
 
@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import sys
 import time
 import traceback
@@ -27,24 +26,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
-from formation_bench.benchmarks.experiments.store import (
-    ResultStore,
-    StoreBusy,
-    git_info,
-    machine_info,
-    now,
-    package_versions,
-)
-from formation_bench.benchmarks.experiments.suite import RunSpec, Suite
-from formation_bench.benchmarks.outputs import trace_frame
-from formation_bench.benchmarks.runner import warm_up_kernels
-from formation_bench.mpc.loop import simulate
-from formation_bench.mpc.metrics import compute_metrics
-from formation_bench.mpc.trigger import TRIGGER_CONDITIONS
-from formation_bench.plugins import load_plugins
+from formation_bench.benchmarks.experiments.store import ResultStore, StoreBusy
+from formation_bench.benchmarks.experiments.suite import Suite
+from formation_bench.benchmarks.provenance import git_info, machine_info, now, package_versions
+from formation_bench.benchmarks.runner import execute
+from formation_bench.benchmarks.spec import RunSpec
 
 DEFAULT_JOBS = 2
 SCHEDULER_TIMEOUT_S = 20
@@ -69,91 +57,16 @@ class RunResult:
     error: str | None = None
 
 
-def flatten_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
-    """Metrics as flat columns: ``{"d12": x}`` under ``distance_error_max_m`` becomes
-    ``distance_error_max_m_d12``, a per-UAV list becomes ``..._uav1``, ``..._uav2``, ...
-
-    Whatever keys :func:`formation_bench.mpc.metrics.compute_metrics` returns are kept.
-    """
-    flat: dict[str, Any] = {}
-    for name, value in metrics.items():
-        if isinstance(value, dict):
-            for sub, item in value.items():
-                flat[f"{name}_{sub}"] = item
-        elif isinstance(value, list | tuple | np.ndarray):
-            stem = name.removesuffix("_per_uav")
-            for k, item in enumerate(value, start=1):
-                flat[f"{stem}_uav{k}"] = item.item() if isinstance(item, np.generic) else item
-            if name.endswith("_per_uav") and all(isinstance(v, int | np.integer) for v in value):
-                flat[f"{stem}_total"] = int(np.sum(value))
-        else:
-            flat[name] = value.item() if isinstance(value, np.generic) else value
-    distances = metrics.get("distance_error_max_m")
-    if isinstance(distances, dict) and distances:
-        flat["distance_error_max_m_max"] = float(max(distances.values()))
-    return flat
-
-
 def execute_run(spec: RunSpec) -> RunResult:
-    """Simulate one run and build its results row; never raises (errors are returned)."""
+    """Carry out one run in a worker and return its row; never raises (errors are returned)."""
     from threadpoolctl import threadpool_limits
 
-    start = time.perf_counter()
     try:
         with threadpool_limits(limits=1):
-            # a fresh worker process knows only the built-in and entry-point optimisers
-            load_plugins(spec.plugins)
-            scenario, optimizer = spec.build()
-            warm_up_kernels()
-            trace = simulate(
-                scenario,
-                optimizer,
-                trigger=spec.trigger,
-                seed=spec.entropy,
-                optimizer_name=spec.optimizer_label,
-                budget=spec.budget,
-            )
-            metrics = compute_metrics(trace)
-            row = _row(spec, metrics)
-            row["solve_times_s"] = [float(t) for t in trace.solve_time_s[trace.solved]]
-            solved_reasons = trace.reasons[trace.solved].sum(axis=0)
-            for k, name in enumerate(TRIGGER_CONDITIONS):
-                row[f"trigger_{name}"] = int(solved_reasons[k])
-            frame = None
-            if spec.trace:
-                frame = trace_frame(trace)
-                frame["scenario"] = spec.scenario_label
-                frame["seed"] = spec.seed
-                frame.insert(3, "budget", spec.budget_label)
-        row["run_time_s"] = time.perf_counter() - start
-        row["finished_at"] = now()
-        row["worker_host"] = socket.gethostname()
-        row["worker_pid"] = os.getpid()
-        return RunResult(spec.key, row, frame)
+            outcome = execute(spec)
+        return RunResult(spec.key, outcome.record.row(), outcome.frame if spec.trace else None)
     except Exception:
         return RunResult(spec.key, None, error=traceback.format_exc())
-
-
-def _row(spec: RunSpec, metrics: dict[str, Any]) -> dict[str, Any]:
-    identity = {
-        "run_key": spec.key,
-        "suite": spec.suite,
-        "optimizer": spec.optimizer_label,
-        "optimizer_name": spec.optimizer_name,
-        "optimizer_overrides": spec.optimizer_overrides,
-        "scenario": spec.scenario_label,
-        "scenario_name": spec.scenario_name,
-        "scenario_overrides": spec.scenario_overrides,
-        "trigger": spec.trigger,
-        "budget": spec.budget_label,
-        "budget_max_evaluations": spec.budget_max_evaluations,
-        "budget_max_iterations": spec.budget_max_iterations,
-        "seed": spec.seed,
-        "seed_entropy": str(spec.entropy),
-        "config_hash": spec.config_hash,
-    }
-    flat = flatten_metrics(metrics)
-    return {**identity, **{k: v for k, v in flat.items() if k not in identity}}
 
 
 # --- executors ---------------------------------------------------------------------------------

@@ -91,15 +91,15 @@ def measure(
             record["optimizer"].extend(solve.seconds for solve in timed.solves)
             record["iterations"].extend(int(solve.result.nit) for solve in timed.solves)
             record["nfev"].extend(int(solve.result.nfev) for solve in timed.solves)
-            metrics = compute_metrics(trace) if not quick else {}
+            metrics = compute_metrics(trace).columns() if not quick else {}
             record["metrics"].append(
                 {
                     "seed": repeat,
                     "solve_failures": int(trace.solve_failed.sum()),
                     **{
                         k: metrics[k]
-                        for k in ("tracking_error_max_m", "distance_error_max_m")
-                        if k in metrics
+                        for k in metrics
+                        if k == "tracking_error_max_m" or k.startswith("distance_error_max_m_d")
                     },
                 }
             )

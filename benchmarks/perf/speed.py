@@ -29,7 +29,8 @@ from typing import Any
 import numpy as np
 
 from formation_bench.benchmarks.instants import RecordedInstant, record_instants
-from formation_bench.benchmarks.runner import run_closed_loop, warm_up_kernels
+from formation_bench.benchmarks.runner import execute, warm_up_kernels
+from formation_bench.benchmarks.spec import RunSpec
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import EvaluationCounter, ModifiedBSO, get_optimizer
 from formation_bench.optimizers.bso_ops import cluster_population
@@ -138,7 +139,9 @@ def measure(quick: bool = False) -> dict[str, Any]:
     if not quick:
         start = time.perf_counter()
         for trigger in (False, True):
-            run_closed_loop(scenario, "modified-bso", optimizer, trigger=trigger, seed=0)
+            execute(
+                RunSpec.of("modified-bso", optimizer, "paper", scenario, trigger=trigger, seed=0)
+            )
         results["reproduce_both_runs_s"] = time.perf_counter() - start
     return results
 
