@@ -64,6 +64,7 @@ def trace_frame(trace: Trace) -> pd.DataFrame:
             "nfev": pad(trace.nfev, 0).astype(np.int64),
             "solve_cost": pad(trace.solve_cost, np.nan),
             "solve_failed": pad(trace.solve_failed, False).astype(bool),
+            "plan_at_bound": pad(trace.plan_at_bound, False).astype(bool),
             "ref_x_m": np.repeat(trace.reference[:, 0], n_uav),
             "ref_y_m": np.repeat(trace.reference[:, 1], n_uav),
             "ref_heading_rad": np.repeat(trace.reference_heading, n_uav),

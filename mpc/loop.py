@@ -77,9 +77,22 @@ class Trace:
     solve_failed: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
     """``(T, N)`` whether a solve failed (``result.success`` False): the UAV then applied its
     shifted previous plan (the warm start) instead of the result."""
+    plan_at_bound: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
+    """``(T, N)`` whether the plan a solve published has a control at one of its bounds
+    (within :data:`AT_BOUND_TOLERANCE` of the bound's range), False without a solve."""
 
 
 ProgressCallback = Callable[[int, int], None]
+
+AT_BOUND_TOLERANCE = 1e-6
+"""A planned control this fraction of its bounds' range from a bound counts as at it (an
+interior-point solver stops a little inside an active bound)."""
+
+
+def at_bound(decision: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> bool:
+    """Whether any component of ``decision`` lies at its lower or upper bound."""
+    margin = AT_BOUND_TOLERANCE * (upper - lower)
+    return bool(np.any((decision <= lower + margin) | (decision >= upper - margin)))
 
 
 def simulate(
@@ -113,6 +126,7 @@ def simulate(
     nfev = np.zeros((n_steps, n_uav), dtype=np.int64)
     solve_cost = np.full((n_steps, n_uav), np.nan)
     solve_failed = np.zeros((n_steps, n_uav), dtype=bool)
+    plan_at_bound = np.zeros((n_steps, n_uav), dtype=bool)
 
     plans: list[Plan] = [coasting_plan(states[0, i], 0, scenario) for i in range(n_uav)]
     for c in range(n_steps):
@@ -177,6 +191,7 @@ def simulate(
             solved[c, i] = True
             nfev[c, i] = result.nfev
             solve_cost[c, i] = result.fun
+            plan_at_bound[c, i] = at_bound(decision, problem.bounds.lower, problem.bounds.upper)
         plans = published
         for i in range(n_uav):
             controls[c, i] = plans[i].controls[c - plans[i].start_step]
@@ -202,4 +217,5 @@ def simulate(
         desired_offsets=offsets[: n_steps + 1],
         wall_time_s=time.perf_counter() - start_time,
         solve_failed=solve_failed,
+        plan_at_bound=plan_at_bound,
     )

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -50,11 +51,12 @@ def distance_errors(trace: Trace) -> dict[str, np.ndarray]:
     }
 
 
-def closed_loop_cost(trace: Trace) -> float:
+def closed_loop_cost(trace: Trace, instants: slice | np.ndarray = slice(None)) -> float:
     """Eq. (11) summed over the UAVs and integrated along the flown trajectory.
 
     Uses the actual positions of all UAVs (not estimates) at t_1 .. t_T, with
-    the same rectangle rule as the predictive cost.
+    the same rectangle rule as the predictive cost; ``instants`` selects some of
+    t_1 .. t_T (a mask or slice over them).
     """
     scenario = trace.scenario
     positions = trace.states[1:, :, :2]
@@ -65,7 +67,41 @@ def closed_loop_cost(trace: Trace) -> float:
     formation = np.sum(relative_error**2, axis=(1, 2, 3))  # i == j terms are zero
     centre_error = positions.mean(axis=1) - trace.reference[1:]
     tracking = scenario.n_uav * np.sum(centre_error**2, axis=1)
-    return float(scenario.period_s * np.sum(scenario.w_dst * formation + scenario.w_trj * tracking))
+    rate = scenario.w_dst * formation + scenario.w_trj * tracking
+    return float(scenario.period_s * np.sum(rate[instants]))
+
+
+def settling_time(trace: Trace) -> float:
+    """The first instant from which every pair's distance error stays within
+    ``settling_distance_band`` of its desired distance and the tracking error within
+    ``settling_tracking_band_m`` to the end of the run; NaN if the last instant is outside."""
+    scenario = trace.scenario
+    desired = scenario.desired_distances()
+    inside = tracking_error(trace) <= scenario.settling_tracking_band_m
+    for name, i, j in pair_names(scenario.n_uav):
+        inside &= distance_errors(trace)[name] <= scenario.settling_distance_band * desired[i, j]
+    outside = np.flatnonzero(~inside)
+    if outside.size == 0:
+        return float(trace.times[0])
+    if outside[-1] == inside.size - 1:
+        return math.nan
+    return float(trace.times[outside[-1] + 1])
+
+
+def min_separation(trace: Trace) -> float:
+    """The smallest distance between any two UAVs at any instant, m."""
+    positions = trace.states[:, :, :2]
+    gaps = np.linalg.norm(positions[:, :, None] - positions[:, None, :], axis=-1)
+    n_uav = positions.shape[1]
+    return float(gaps[:, *np.triu_indices(n_uav, k=1)].min())
+
+
+def control_effort(trace: Trace) -> np.ndarray:
+    """Per UAV, the integral over the run of (a / a_max)^2 + (omega / omega_max)^2, where
+    a_max and omega_max are each control's largest bound magnitude: seconds at full effort."""
+    scenario = trace.scenario
+    scale = np.maximum(np.abs(scenario.control_lower), np.abs(scenario.control_upper))
+    return scenario.period_s * np.sum((trace.controls / scale) ** 2, axis=(0, 2))
 
 
 class Per(enum.Enum):
@@ -120,6 +156,28 @@ class Metrics:
     closed_loop_cost: float = metric(
         "eq. (11) summed over the UAVs and integrated along the flown trajectory from t = 0",
         "cost",
+    )
+    transient_cost: float = metric(
+        "the part of closed_loop_cost before the settle time (the start-up)", "cost"
+    )
+    steady_state_cost: float = metric(
+        "the part of closed_loop_cost from the settle time on (the steady state)", "cost"
+    )
+    settling_time_s: float = metric(
+        "first time from which every pair's distance error stays within "
+        "settling_distance_band of its desired distance and the tracking error within "
+        "settling_tracking_band_m to the end; NaN if the end is outside",
+        "s",
+    )
+    min_separation_m: float = metric("smallest distance between two UAVs over the run", "m")
+    control_effort: tuple[float, ...] = metric(
+        "integral of (a / a_max)^2 + (omega / omega_max)^2 over the run, bounds' largest "
+        "magnitudes as the scales",
+        "s",
+        per=Per.UAV,
+    )
+    solves_at_bound_share: float = metric(
+        "share of solves whose published plan has a control at one of its bounds", "fraction"
     )
     nfev_total: int = metric("cost evaluations of all solves", "evaluations")
     solve_failures: int = metric(
@@ -198,6 +256,7 @@ def compute_metrics(trace: Trace) -> Metrics:
     distances = {name: float(err[settled].max()) for name, err in distance_errors(trace).items()}
     solves = tuple(int(n) for n in trace.solved.sum(axis=0))
     by_condition = trace.reasons[trace.solved].sum(axis=0)
+    steady = trace.times[1:] >= scenario.settle_time_s - 1e-9
     return Metrics(
         tracking_error_max_m=float(tracking.max()),
         tracking_error_rms_m=float(np.sqrt(np.mean(tracking**2))),
@@ -207,6 +266,12 @@ def compute_metrics(trace: Trace) -> Metrics:
         solves_total=int(sum(solves)),
         trigger={name: int(by_condition[k]) for k, name in enumerate(TRIGGER_CONDITIONS)},
         closed_loop_cost=closed_loop_cost(trace),
+        transient_cost=closed_loop_cost(trace, ~steady),
+        steady_state_cost=closed_loop_cost(trace, steady),
+        settling_time_s=settling_time(trace),
+        min_separation_m=min_separation(trace),
+        control_effort=tuple(float(e) for e in control_effort(trace)),
+        solves_at_bound_share=float(trace.plan_at_bound[trace.solved].mean()),
         nfev_total=int(trace.nfev.sum()),
         solve_failures=int(trace.solve_failed.sum()),
         solve_time_median_s=float(np.median(solve_times)),

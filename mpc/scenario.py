@@ -150,6 +150,15 @@ class Scenario:
     rk4_substeps: int = setting(
         1, low=1, high=1000, doc="RK4 sub-steps per control period in prediction and plant"
     )
+    settling_distance_band: float = setting(
+        0.02, low=0.0, low_open=True,
+        doc="Settling time: every pair's distance error within this fraction of its desired "
+        "distance",
+    )  # fmt: skip
+    settling_tracking_band_m: float = setting(
+        1.0, low=0.0, low_open=True,
+        doc="Settling time: the formation centre within this distance of the reference, m",
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         validate_fields(self)

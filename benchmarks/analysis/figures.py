@@ -188,20 +188,29 @@ METRIC_LABELS = {
     "tracking_error_max_m": "tracking error max after settling (m)",
     "tracking_error_rms_m": "tracking error RMS after settling (m)",
     "distance_error_max_m_max": "largest distance error after settling (m)",
-    "closed_loop_cost": "closed-loop cost, eq. (11) summed (m² s)",
+    "closed_loop_cost": "closed-loop cost from t = 0, eq. (11) summed (m² s)",
+    "steady_state_cost": "steady-state cost, eq. (11) after settling (m² s)",
+    "transient_cost": "transient cost, eq. (11) before settling (m² s)",
+    "settling_time_s": "settling time (s)",
+    "min_separation_m": "smallest separation of two UAVs (m)",
     "solves_total": "solves per run, all UAVs",
     "solve_time_median_s": "median solve time (s)",
     "nfev_total": "objective evaluations per run",
 }
 """Axis labels, with units, of the headline metrics."""
 
-LOG_SCALE = frozenset({"closed_loop_cost", "solve_time_median_s", "nfev_total"})
+LOG_SCALE = frozenset(
+    {"closed_loop_cost", "transient_cost", "steady_state_cost", "solve_time_median_s", "nfev_total"}
+)
 """Metrics that may spread over orders of magnitude: a log axis when they do (> 20x)."""
 
 
 def label(metric: str) -> str:
-    """Axis label of a metric (its name when no label is known)."""
-    return METRIC_LABELS.get(metric, metric)
+    """Axis label of a metric (its name and declared unit when no label is written)."""
+    from formation_bench.mpc.metrics import metric_of
+
+    info = metric_of(metric)
+    return METRIC_LABELS.get(metric, f"{metric} ({info.unit})" if info else metric)
 
 
 def _order(frame: pd.DataFrame, factor: str, by: str | None = None) -> list:
@@ -224,13 +233,20 @@ def distribution_figure(
     fig, axes = plt.subplots(
         1, len(panels), figsize=(width * len(panels), 5.4), squeeze=False, constrained_layout=True
     )
+    missing = int(frame[metric].isna().sum())
     for ax, panel in zip(axes[0], panels, strict=True):
         data = frame if panel is None else frame[frame[block] == panel]
+        # a run without a value (e.g. one that never settled) has no point to draw
+        data = data.dropna(subset=[metric])
+        shown = [level for level in order if level in set(data[factor])]
+        if not shown:
+            ax.text(0.5, 0.5, "no values", ha="center", va="center", transform=ax.transAxes)
+            continue
         sns.boxplot(
-            data=data, x=factor, y=metric, order=order, ax=ax, showfliers=False, color="#b7cde3"
+            data=data, x=factor, y=metric, order=shown, ax=ax, showfliers=False, color="#b7cde3"
         )
         sns.stripplot(
-            data=data, x=factor, y=metric, order=order, ax=ax, color="#1f3b5a", size=3, alpha=0.6
+            data=data, x=factor, y=metric, order=shown, ax=ax, color="#1f3b5a", size=3, alpha=0.6
         )
         values = data[metric][data[metric] > 0]
         if metric in LOG_SCALE and len(values) and values.max() > 20 * values.min():
@@ -242,7 +258,8 @@ def distribution_figure(
             tick.set_horizontalalignment("right")
         if panel is not None:
             ax.set_title(f"{block} = {panel}", fontsize=10)
-    fig.suptitle(f"per {factor}, one point per run", fontsize=10)
+    left_out = f"; {missing} runs without a value left out" if missing else ""
+    fig.suptitle(f"per {factor}, one point per run{left_out}", fontsize=10)
     return fig
 
 

@@ -35,10 +35,13 @@ FACTORS = ("optimizer", "trigger", "budget", "scenario")
 """Factors a report can compare, in the order the default choice tries them."""
 
 HEADLINE_METRICS = (
+    "steady_state_cost",
     "tracking_error_max_m",
     "tracking_error_rms_m",
     "distance_error_max_m_max",
-    "closed_loop_cost",
+    "transient_cost",
+    "settling_time_s",
+    "min_separation_m",
     "solves_total",
     "solve_time_median_s",
     "nfev_total",
