@@ -21,6 +21,8 @@ MAX_EVALUATIONS = 10_000_000
 """Cost evaluations per solve: about a minute per solve at 5 µs each."""
 MAX_ITERATIONS = 1_000_000
 """Iterations per solve."""
+MAX_DEADLINE_S = 60.0
+"""Per-solve deadline: a closed loop makes hundreds of solves, so a minute each is hours."""
 MAX_SEED = 2**128 - 1
 """Largest seed: a sweep run's SeedSequence entropy is 128 bits, and ``run --seed`` repeats it."""
 MAX_SEEDS = 10_000
@@ -84,6 +86,11 @@ def _check_budget(what: str, budget: Budget | None) -> None:
                 f"{what}: {name}={value} is more than {limit:,} per solve (a closed loop "
                 "makes hundreds of solves)"
             )
+    if budget.deadline_s is not None and budget.deadline_s > MAX_DEADLINE_S:
+        raise LimitError(
+            f"{what}: deadline_ms={1000 * budget.deadline_s:g} is more than "
+            f"{1000 * MAX_DEADLINE_S:,.0f} per solve (a closed loop makes hundreds of solves)"
+        )
 
 
 def check_seed_count(count: int, what: str = "--seeds") -> None:

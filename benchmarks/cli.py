@@ -36,7 +36,7 @@ from formation_bench.benchmarks.runner import (
     write_figures,
     write_trigger_figure,
 )
-from formation_bench.benchmarks.spec import RunSpec
+from formation_bench.benchmarks.spec import RunSpec, with_deadline
 from formation_bench.benchmarks.staging import OutputError, staged_folder
 from formation_bench.mpc.loop import ProgressCallback
 from formation_bench.mpc.reference import REFERENCE_PATHS
@@ -231,10 +231,11 @@ def _budget(args: argparse.Namespace) -> Budget | None:
 def cmd_run(args: argparse.Namespace) -> int:
     scenario, optimizer = _build(args)
     budget = _budget(args)
-    _check(scenario, optimizer, budget)
+    _check(scenario, optimizer, with_deadline(budget, args.deadline_ms, optimizer))
     spec = RunSpec.of(
         args.optimizer, optimizer, args.scenario, scenario,
-        trigger=args.trigger, seed=args.seed, budget=budget, plugins=plugins.loaded_plugins(),
+        trigger=args.trigger, seed=args.seed, budget=budget, deadline_ms=args.deadline_ms,
+        plugins=plugins.loaded_plugins(),
     )  # fmt: skip
     with _staged(args) as out:
         _compile_notice()
@@ -445,6 +446,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="per-solve iteration budget (default: the optimizer's own budget)",
     )
+    run.add_argument(
+        "--deadline-ms",
+        type=_deadline,
+        metavar="MS",
+        help="per-solve wall-clock deadline in milliseconds: a solve returns its best point "
+        "so far when it passes (results then depend on the machine's speed)",
+    )
     run.add_argument("--out", required=True, help="output folder")
     run.add_argument(
         "--figures",
@@ -495,6 +503,18 @@ def _positive(text: str) -> int:
 
 def _non_negative(text: str) -> int:
     return _integer(text, 0)
+
+
+def _deadline(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be a number of milliseconds > 0, got {text!r}"
+        ) from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a number of milliseconds > 0, got {text}")
+    return value
 
 
 def _seed(text: str) -> int:

@@ -50,6 +50,9 @@ class RunDescription:
     budget: str = column("per-solve budget: 'default' or e.g. 'max_evaluations=1200'")
     budget_max_evaluations: int | None = column("per-solve evaluation limit, if set")
     budget_max_iterations: int | None = column("per-solve iteration limit, if set")
+    budget_deadline_ms: float | None = column(
+        "per-solve wall-clock deadline, ms, if set (the run then depends on the machine's speed)"
+    )
     seed: int = column("the run's seed as the user gave it (0, 1, ... in a suite)")
     seed_entropy: str = column("entropy of the run's SeedSequence (decimal; up to 128 bits)")
     config_hash: str = column("SHA-256 of the fully resolved optimiser, scenario and budget")
@@ -73,6 +76,7 @@ class RunDescription:
             budget=spec.budget_label,
             budget_max_evaluations=spec.budget_max_evaluations,
             budget_max_iterations=spec.budget_max_iterations,
+            budget_deadline_ms=spec.budget_deadline_ms,
             seed=spec.seed,
             seed_entropy=str(spec.entropy),
             config_hash=spec.config_hash,

@@ -121,6 +121,9 @@ class RunSpec:
     """SHA-256 of the fully resolved optimiser, scenario and budget: a stored result whose
     hash differs was produced by a different configuration (changed code defaults) and is
     redone."""
+    budget_deadline_ms: float | None = None
+    """Per-solve wall-clock deadline, milliseconds; None: none. With no other limit it caps
+    the optimiser's own budget. A run under a deadline depends on the machine's speed."""
     seed_entropy: int | None = None
     """Entropy of the run's :class:`numpy.random.SeedSequence`; None: the seed itself. A
     suite's runs take it from their identity (:meth:`identity_entropy`), so that seed 0 of
@@ -145,6 +148,7 @@ class RunSpec:
         trigger: bool,
         seed: int,
         budget: Budget | None = None,
+        deadline_ms: float | None = None,
         plugins: tuple[str, ...] = (),
     ) -> RunSpec:
         """The run of configured objects, labelled by their changes from the registered
@@ -166,19 +170,29 @@ class RunSpec:
             seed=seed,
             budget_max_evaluations=None if budget is None else budget.max_evaluations,
             budget_max_iterations=None if budget is None else budget.max_iterations,
-            config_hash=resolved_config_hash(scenario, optimizer, budget),
+            config_hash=resolved_config_hash(
+                scenario, optimizer, with_deadline(budget, deadline_ms, optimizer)
+            ),
+            budget_deadline_ms=deadline_ms,
             plugins=plugins,
         )
 
     @property
     def budget(self) -> Budget | None:
+        """The per-solve budget; None: the optimiser's own."""
         if self.budget_max_evaluations is None and self.budget_max_iterations is None:
-            return None
-        return Budget(self.budget_max_evaluations, self.budget_max_iterations)
+            if self.budget_deadline_ms is None:
+                return None
+            _, optimizer = self.build()
+            return with_deadline(None, self.budget_deadline_ms, optimizer)
+        limits = Budget(self.budget_max_evaluations, self.budget_max_iterations)
+        return with_deadline(limits, self.budget_deadline_ms, None)
 
     @property
     def budget_label(self) -> str:
-        return budget_label(self.budget_max_evaluations, self.budget_max_iterations)
+        return budget_label(
+            self.budget_max_evaluations, self.budget_max_iterations, self.budget_deadline_ms
+        )
 
     def identity(self) -> dict[str, Any]:
         """What the run *is*: its result file name and a suite run's streams derive from it."""
@@ -189,10 +203,12 @@ class RunSpec:
             "scenario": self.scenario_name,
             "scenario_overrides": json.loads(self.scenario_overrides),
             "trigger": self.trigger,
+            # a deadline joins the identity only when set, so no other run changes its key
             "budget": {
                 "max_evaluations": self.budget_max_evaluations,
                 "max_iterations": self.budget_max_iterations,
-            },
+            }
+            | ({} if self.budget_deadline_ms is None else {"deadline_ms": self.budget_deadline_ms}),
             "seed": self.seed,
         }
 
@@ -247,6 +263,8 @@ class RunSpec:
             args += ["--max-evaluations", str(self.budget_max_evaluations)]
         if self.budget_max_iterations is not None:
             args += ["--max-iterations", str(self.budget_max_iterations)]
+        if self.budget_deadline_ms is not None:
+            args += ["--deadline-ms", repr(self.budget_deadline_ms)]
         return args
 
     def run_command(self, out: str = "DIR") -> str:
@@ -274,13 +292,28 @@ def short_value(value: Any) -> str:
     return json.dumps(value, separators=(",", ":")).strip('"')
 
 
-def budget_label(max_evaluations: int | None, max_iterations: int | None) -> str:
+def with_deadline(
+    budget: Budget | None, deadline_ms: float | None, optimizer: Optimizer | None
+) -> Budget | None:
+    """``budget`` (or, if None, ``optimizer``'s own) with a per-solve deadline in ms."""
+    if deadline_ms is None:
+        return budget
+    if budget is None:
+        assert optimizer is not None, "a deadline alone caps the optimiser's own budget"
+        budget = optimizer.default_budget
+    return dataclasses.replace(budget, deadline_s=deadline_ms / 1000.0)
+
+
+def budget_label(
+    max_evaluations: int | None, max_iterations: int | None, deadline_ms: float | None = None
+) -> str:
     """``default`` or e.g. ``max_evaluations=1200``."""
     parts = [
         f"{name}={value}"
         for name, value in (
             ("max_evaluations", max_evaluations),
             ("max_iterations", max_iterations),
+            ("deadline_ms", None if deadline_ms is None else f"{deadline_ms:g}"),
         )
         if value is not None
     ]

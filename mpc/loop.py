@@ -77,6 +77,8 @@ class Trace:
     solve_failed: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
     """``(T, N)`` whether a solve failed (``result.success`` False): the UAV then applied its
     shifted previous plan (the warm start) instead of the result."""
+    deadline_s: float | None = None
+    """Per-solve wall-clock deadline of the run's budget, seconds; None: none."""
     plan_at_bound: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
     """``(T, N)`` whether the plan a solve published has a control at one of its bounds
     (within :data:`AT_BOUND_TOLERANCE` of the bound's range), False without a solve."""
@@ -218,4 +220,5 @@ def simulate(
         wall_time_s=time.perf_counter() - start_time,
         solve_failed=solve_failed,
         plan_at_bound=plan_at_bound,
+        deadline_s=None if budget is None else budget.deadline_s,
     )

@@ -135,8 +135,7 @@ class Metrics:
         "root mean square of that distance after the settle time", "m"
     )
     distance_error_max_m: dict[str, float] = metric(
-        "largest difference between a UAV pair's actual and desired distance after the settle "
-        "time",
+        "largest difference between a UAV pair's actual and desired distance after the settle time",
         "m",
         per=Per.PAIR,
     )
@@ -182,6 +181,12 @@ class Metrics:
     nfev_total: int = metric("cost evaluations of all solves", "evaluations")
     solve_failures: int = metric(
         "solves whose optimiser reported failure (the UAV kept its shifted plan)", "solves"
+    )
+    deadline_misses: int = metric(
+        "solves whose wall time (problem build and optimiser) passed the budget's deadline; "
+        "0 without a deadline",
+        "solves",
+        timing=True,
     )
     solve_time_median_s: float = metric("median wall time of a solve", "s", timing=True)
     solve_time_p95_s: float = metric("95th percentile of a solve's wall time", "s", timing=True)
@@ -274,6 +279,9 @@ def compute_metrics(trace: Trace) -> Metrics:
         solves_at_bound_share=float(trace.plan_at_bound[trace.solved].mean()),
         nfev_total=int(trace.nfev.sum()),
         solve_failures=int(trace.solve_failed.sum()),
+        deadline_misses=0
+        if trace.deadline_s is None
+        else int(np.sum(solve_times > trace.deadline_s)),
         solve_time_median_s=float(np.median(solve_times)),
         solve_time_p95_s=float(np.percentile(solve_times, 95)),
         solve_time_max_s=float(solve_times.max()),

@@ -97,13 +97,19 @@ class Budget:
 
     At least one of the two limits must be set; the solve stops at whichever
     is reached first, and the evaluation count never exceeds
-    ``max_evaluations``.
+    ``max_evaluations``. A ``deadline_s`` also stops it once that much wall time
+    has passed since the solve began, with the best point so far: a population
+    method checks it between iterations (its initial population is always
+    evaluated), so one iteration may run past it.
     """
 
     max_evaluations: int | None = None
     """Largest number of objective evaluations (rows evaluated), >= 1."""
     max_iterations: int | None = None
     """Largest number of iterations (generations) after initialisation, >= 0."""
+    deadline_s: float | None = None
+    """Wall-clock time per solve, seconds, > 0; None: no deadline. A solve under a deadline
+    depends on the machine's speed, so its result is not repeatable bit for bit."""
 
     def __post_init__(self) -> None:
         if self.max_evaluations is None and self.max_iterations is None:
@@ -120,6 +126,13 @@ class Budget:
             raise ValueError(
                 f"Budget.max_iterations must be an integer >= 0, got {self.max_iterations!r}"
             )
+        if self.deadline_s is not None and not (
+            isinstance(self.deadline_s, int | float | np.integer | np.floating)
+            and not isinstance(self.deadline_s, bool)
+            and math.isfinite(self.deadline_s)
+            and self.deadline_s > 0
+        ):
+            raise ValueError(f"Budget.deadline_s must be a number > 0, got {self.deadline_s!r}")
 
 
 @dataclass(frozen=True)
@@ -319,6 +332,7 @@ class PopulationOptimizer(Optimizer, Generic[StateT]):
     ) -> OptimizeResult:
         rng = check_rng(rng)
         budget = self.default_budget if budget is None else budget
+        started = perf_counter()
         x0 = check_x0(x0, bounds)
         counter = EvaluationCounter(objective, bounds.dim, budget.max_evaluations)
         max_iterations = self.planned_iterations(budget)
@@ -331,6 +345,9 @@ class PopulationOptimizer(Optimizer, Generic[StateT]):
         while nit < iteration_limit:
             if counter.remaining <= 0:
                 message = "evaluation budget reached"
+                break
+            if budget.deadline_s is not None and perf_counter() - started >= budget.deadline_s:
+                message = "deadline reached"
                 break
             state = self.step(state, counter, bounds, rng, nit + 1)
             nit += 1

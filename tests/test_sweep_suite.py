@@ -65,7 +65,10 @@ def test_shipped_suites_load_with_the_promised_contents():
     assert all(n.startswith("modified-bso") for n in names) and len(ablation.seeds) == 30
     comparison = load_suite("comparison")
     assert sorted(e.name for e in comparison.optimizers) == sorted(OPTIMIZERS)
-    assert comparison.budgets == ((1200, None),) and len(comparison.seeds) == 30
+    assert comparison.budgets == ((1200, None, None),) and len(comparison.seeds) == 30
+    deadline = load_suite("deadline")
+    assert [b[2] for b in deadline.budgets] == [0.5, 1.0, 2.0, 5.0]
+    assert {r.budget.deadline_s for r in deadline.runs()[:40]} == {0.0005, 0.001, 0.002, 0.005}
 
 
 def test_expansion_order_labels_and_budgets():

@@ -263,6 +263,37 @@ def distribution_figure(
     return fig
 
 
+def deadline_figure(
+    frame: pd.DataFrame,
+    metrics: tuple[str, ...] = ("steady_state_cost", "tracking_error_max_m", "deadline_misses"),
+    factor: str = "optimizer",
+) -> plt.Figure:
+    """Each level's median (and quartiles) of ``metrics`` against the per-solve deadline.
+
+    Only runs with a deadline are drawn; the deadline axis is logarithmic.
+    """
+    sns.set_theme(style="whitegrid")
+    data = frame.dropna(subset=["budget_deadline_ms"])
+    shown = [m for m in metrics if m in data.columns]
+    fig, axes = plt.subplots(
+        1, len(shown), figsize=(5.2 * len(shown), 4.4), squeeze=False, constrained_layout=True
+    )
+    for ax, metric in zip(axes[0], shown, strict=True):
+        for level, runs in data.groupby(factor, sort=True):
+            quartiles = runs.groupby("budget_deadline_ms")[metric].quantile([0.25, 0.5, 0.75])
+            table = quartiles.unstack()
+            line = ax.plot(table.index, table[0.5], marker="o", label=str(level))[0]
+            ax.fill_between(
+                table.index, table[0.25], table[0.75], color=line.get_color(), alpha=0.15
+            )
+        ax.set_xscale("log")
+        ax.set_xlabel("per-solve deadline (ms)")
+        ax.set_ylabel(label(metric))
+    axes[0][0].legend(fontsize=8)
+    fig.suptitle(f"median and quartiles per {factor} over the seeds", fontsize=10)
+    return fig
+
+
 def solve_time_ecdf_figure(
     frame: pd.DataFrame, factor: str = "optimizer", block: str | None = None
 ) -> plt.Figure:

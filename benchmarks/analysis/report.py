@@ -367,6 +367,7 @@ def _write_figures(report: Report, results: pd.DataFrame, folder: Path) -> list[
     import matplotlib.pyplot as plt
 
     from formation_bench.benchmarks.analysis.figures import (
+        deadline_figure,
         distribution_figure,
         solve_time_ecdf_figure,
         trigger_conditions_figure,
@@ -387,6 +388,9 @@ def _write_figures(report: Report, results: pd.DataFrame, folder: Path) -> list[
     if "solve_times_s" in frame.columns:
         figure = solve_time_ecdf_figure(frame, factor, block=block)
         written.append(_save(figure, folder / "solve_time_ecdf.png", plt))
+    if "budget_deadline_ms" in frame and frame["budget_deadline_ms"].nunique() > 1:
+        figure = deadline_figure(frame, factor="optimizer" if factor == "budget" else factor)
+        written.append(_save(figure, folder / "deadline_quality.png", plt))
     reasons = [c for c in frame.columns if c.startswith("trigger_") and c != "trigger"]
     if reasons and (frame["trigger"] == "on").any():
         figure = trigger_conditions_figure(frame, factor)

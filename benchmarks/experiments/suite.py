@@ -43,9 +43,10 @@ from formation_bench.benchmarks.spec import (
     labelled,
     resolved_config_hash,
     sha256_hex,
+    with_deadline,
 )
 from formation_bench.mpc.scenario import SCENARIOS, get_scenario
-from formation_bench.optimizers import OPTIMIZERS, Budget, get_optimizer
+from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
 from formation_bench.plugins import loaded_plugins
 
 SUITES_DIR = Path(__file__).parent / "suites"
@@ -55,7 +56,7 @@ TOP_LEVEL_FIELDS = ("name", "description", "seeds", "triggers", "budgets", "trac
 TABLE_FIELDS = ("optimizers", "scenarios")
 OPTIMIZER_FIELDS = ("name", "label", "overrides", "optional", "exclude")
 SCENARIO_FIELDS = ("name", "label", "overrides")
-BUDGET_FIELDS = ("max_evaluations", "max_iterations")
+BUDGET_FIELDS = ("max_evaluations", "max_iterations", "deadline_ms")
 ALL_OPTIMIZERS = "*"
 
 
@@ -87,8 +88,8 @@ class Suite:
     description: str
     seeds: tuple[int, ...]
     triggers: tuple[bool, ...]
-    budgets: tuple[tuple[int | None, int | None], ...]
-    """``(max_evaluations, max_iterations)`` per budget; ``(None, None)`` = default."""
+    budgets: tuple[tuple[int | None, int | None, float | None], ...]
+    """``(max_evaluations, max_iterations, deadline_ms)`` per budget; all None = default."""
     trace: bool
     optimizers: tuple[Entry, ...]
     scenarios: tuple[Entry, ...]
@@ -110,12 +111,9 @@ class Suite:
                 optimizer = get_optimizer(
                     optimizer_entry.name, **from_json_value(json.loads(optimizer_entry.overrides))
                 )
-                for max_evaluations, max_iterations in self.budgets:
-                    budget = (
-                        None
-                        if max_evaluations is None and max_iterations is None
-                        else Budget(max_evaluations, max_iterations)
-                    )
+                for limits in self.budgets:
+                    max_evaluations, max_iterations, deadline_ms = limits
+                    budget = resolved_budget(*limits, optimizer)
                     config_hash = resolved_config_hash(scenario, optimizer, budget)
                     for trigger in self.triggers:
                         for seed in self.seeds:
@@ -130,6 +128,7 @@ class Suite:
                                 trigger=trigger,
                                 budget_max_evaluations=max_evaluations,
                                 budget_max_iterations=max_iterations,
+                                budget_deadline_ms=deadline_ms,
                                 seed=seed,
                                 trace=self.trace,
                                 config_hash=config_hash,
@@ -283,19 +282,19 @@ class _Validator:
             )
         return tuple(triggers)
 
-    def budgets(self) -> tuple[tuple[int | None, int | None], ...]:
+    def budgets(self) -> tuple[tuple[int | None, int | None, float | None], ...]:
         budgets = self.data.get("budgets", ["default"])
         if not isinstance(budgets, list) or not budgets:
             raise self.fail(
                 ("budgets",),
                 'must be a non-empty list of "default" or tables '
-                f"{{max_evaluations = N, max_iterations = M}}, got {budgets!r}",
+                f"{{max_evaluations = N, max_iterations = M, deadline_ms = T}}, got {budgets!r}",
             )
         result = []
         for k, budget in enumerate(budgets):
             where = ("budgets", k)
             if budget == "default":
-                result.append((None, None))
+                result.append((None, None, None))
                 continue
             if not isinstance(budget, dict):
                 raise self.fail(
@@ -308,11 +307,29 @@ class _Validator:
                     raise self.fail(
                         (*where, key), f"unknown budget field; allowed: {', '.join(BUDGET_FIELDS)}"
                     )
+            limits = {k: v for k, v in budget.items() if k != "deadline_ms"}
+            deadline_ms = budget.get("deadline_ms")
+            if deadline_ms is not None and not (
+                isinstance(deadline_ms, int | float)
+                and not isinstance(deadline_ms, bool)
+                and math.isfinite(deadline_ms)
+                and deadline_ms > 0
+            ):
+                raise self.fail(
+                    (*where, "deadline_ms"), f"must be a number of milliseconds > 0, got "
+                    f"{deadline_ms!r}",
+                )  # fmt: skip
             try:
-                checked = Budget(**budget)
+                checked = Budget(**limits) if limits else None
             except ValueError as err:
                 raise self.fail(where, str(err)) from None
-            result.append((checked.max_evaluations, checked.max_iterations))
+            result.append(
+                (
+                    None if checked is None else checked.max_evaluations,
+                    None if checked is None else checked.max_iterations,
+                    None if deadline_ms is None else float(deadline_ms),
+                )
+            )
         if len(set(result)) != len(result):
             raise self.fail(("budgets",), "budgets must be distinct")
         return tuple(result)
@@ -410,7 +427,7 @@ class _Validator:
         self,
         optimizers: tuple[Entry, ...],
         scenarios: tuple[Entry, ...],
-        budgets: tuple[tuple[int | None, int | None], ...],
+        budgets: tuple[tuple[int | None, int | None, float | None], ...],
     ) -> None:
         """Every combination must be a run that finishes (before any of them starts)."""
         for scenario_entry in scenarios:
@@ -422,7 +439,7 @@ class _Validator:
                     optimizer_entry.name, **from_json_value(json.loads(optimizer_entry.overrides))
                 )
                 for limits in budgets:
-                    budget = None if limits == (None, None) else Budget(*limits)
+                    budget = resolved_budget(*limits, optimizer)
                     try:
                         check_run(scenario, optimizer, budget)
                     except LimitError as err:
@@ -509,6 +526,21 @@ def _dotted(where: tuple[Any, ...]) -> str:
     for part in where:
         text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
     return text
+
+
+def resolved_budget(
+    max_evaluations: int | None,
+    max_iterations: int | None,
+    deadline_ms: float | None,
+    optimizer: Optimizer,
+) -> Budget | None:
+    """The per-solve budget of a suite's budget entry for ``optimizer`` (None: its own)."""
+    limits = (
+        None
+        if max_evaluations is None and max_iterations is None
+        else Budget(max_evaluations, max_iterations)
+    )
+    return with_deadline(limits, deadline_ms, optimizer)
 
 
 def run_count(suite: Suite) -> int:

@@ -62,6 +62,8 @@ if TYPE_CHECKING:
     import casadi as ca
 
 SUCCESS_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+DEADLINE_STATUS = "Maximum_WallTime_Exceeded"
+"""IPOPT's status at a solve's deadline: its iterate is the best point so far, within bounds."""
 EVALUATION_COUNTERS = (
     "n_call_nlp_f",
     "n_call_nlp_grad_f",
@@ -155,7 +157,9 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
 
     # --- building -----------------------------------------------------------------------------
 
-    def _options(self, max_iter: int, dual_start: bool) -> dict[str, Any]:
+    def _options(
+        self, max_iter: int, dual_start: bool, deadline_s: float | None = None
+    ) -> dict[str, Any]:
         options: dict[str, Any] = {
             "print_time": False,
             "record_time": True,
@@ -174,6 +178,8 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
             "ipopt.warm_start_mult_bound_push": self.bound_push,
             "ipopt.warm_start_init_point": "yes" if dual_start else "no",
         }
+        if deadline_s is not None:
+            options["ipopt.max_wall_time"] = deadline_s
         options.update({f"ipopt.{name}": value for name, value in self.ipopt_options})
         if self.jit:
             options.update(
@@ -185,13 +191,20 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
             )
         return options
 
-    def build(self, shape: ProblemShape, max_iter: int, dual_start: bool = False) -> _Solver:
+    def build(
+        self,
+        shape: ProblemShape,
+        max_iter: int,
+        dual_start: bool = False,
+        deadline_s: float | None = None,
+    ) -> _Solver:
         """The ``nlpsol`` for ``shape`` (cached: built once per shape and iteration limit).
 
         ``dual_start`` selects IPOPT's ``warm_start_init_point``: the multipliers
         passed in are used (a separate solver, since it is a construction option).
+        ``deadline_s`` is IPOPT's ``max_wall_time`` (also a construction option).
         """
-        key = ("solver", shape, max_iter, dual_start)
+        key = ("solver", shape, max_iter, dual_start, deadline_s)
         solver = self._solver_cache.get(key)
         if solver is None:
             import casadi as ca  # imported when a solver is first built: a slow import
@@ -228,7 +241,8 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
                 n_states = STATE_DIM * horizon
             cost = horizon_cost(shape, [z[:2] for z in states], params)
             nlp = {"x": variables, "p": params.vector, "f": cost, "g": constraints}
-            nlpsol = ca.nlpsol("dmpc_ipopt", "ipopt", nlp, self._options(max_iter, dual_start))
+            options = self._options(max_iter, dual_start, deadline_s)
+            nlpsol = ca.nlpsol("dmpc_ipopt", "ipopt", nlp, options)
             solver = _Solver(nlpsol, shape.dim, n_states, time.perf_counter() - start)
             self._solver_cache[key] = solver
         return solver
@@ -278,7 +292,7 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
                     index = np.minimum(shift + np.arange(lam_g.shape[0]), lam_g.shape[0] - 1)
                     args["lam_g0"] = lam_g[index].reshape(-1)
                 dual_start = True
-        solver = self.build(shape, max_iter, dual_start)
+        solver = self.build(shape, max_iter, dual_start, budget.deadline_s)
         nlpsol = solver.nlpsol
         setup_s = time.perf_counter() - start
         message = ""
@@ -287,7 +301,8 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
             stats = nlpsol.stats()
             status = str(stats.get("return_status", "unknown"))
             x = np.asarray(solution["x"], dtype=np.float64).reshape(-1)
-            ok = status in SUCCESS_STATUSES and bool(np.all(np.isfinite(x)))
+            stopped = budget.deadline_s is not None and status == DEADLINE_STATUS
+            ok = (status in SUCCESS_STATUSES or stopped) and bool(np.all(np.isfinite(x)))
         except RuntimeError as err:  # CasADi raises on evaluation errors it cannot recover
             stats = {}
             status = "exception"

@@ -350,6 +350,12 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
         nit = 0
         failed = False
         for round_ in range(rounds):
+            left_s = None if budget.deadline_s is None else budget.deadline_s - (
+                time.perf_counter() - start
+            )
+            if left_s is not None and left_s <= 0 and round_ > 0:
+                message = f"deadline reached after {round_} rounds"
+                break
             matrix_values, q = functions.linearise(current, params)
             matrix_values = np.asarray(matrix_values, dtype=np.float64).reshape(-1)
             q = np.asarray(q, dtype=np.float64).reshape(-1)
@@ -361,6 +367,9 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
                 entry.solver.update(q=q, l=lower, u=upper, Ax=matrix_values)
             else:
                 entry.solver.update(q=q, l=lower, u=upper, Px=matrix_values)
+            if left_s is not None:
+                # OSQP stops at its time limit (0 disables it) with the status saying so
+                entry.solver.update_settings(time_limit=max(left_s, 1e-6))
             result = entry.solver.solve(raise_error=False)
             statuses.append(str(result.info.status))
             qp_iterations.append(int(result.info.iter))

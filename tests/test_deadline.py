@@ -1,0 +1,119 @@
+"""Per-solve wall-clock deadlines: the budget, the population loop, the record and the boundary."""
+
+import json
+import time
+
+import numpy as np
+import pytest
+
+from formation_bench.benchmarks.cli import main
+from formation_bench.benchmarks.experiments.suite import SuiteError, parse_suite
+from formation_bench.benchmarks.spec import RunSpec
+from formation_bench.mpc.scenario import get_scenario
+from formation_bench.optimizers import Bounds, Budget, get_optimizer
+
+
+def slow_sphere(x: np.ndarray) -> np.ndarray:
+    time.sleep(0.002)  # every batch takes 2 ms, so a 10 ms deadline allows a few iterations
+    return np.sum(x**2, axis=1)
+
+
+@pytest.mark.parametrize("name", ["modified-bso", "pso", "original-bso", "cls-bso"])
+def test_a_population_method_stops_at_its_deadline_with_its_best_point(name):
+    bounds = Bounds(np.full(4, -5.0), np.full(4, 5.0))
+    optimizer = get_optimizer(name)
+    budget = Budget(max_iterations=10_000, deadline_s=0.01)
+    # compile (or load) the kernels first: the deadline is about the iterations
+    optimizer.minimize(slow_sphere, bounds, np.random.default_rng(0), Budget(max_iterations=1))
+    start = time.perf_counter()
+    result = optimizer.minimize(slow_sphere, bounds, np.random.default_rng(0), budget)
+    elapsed = time.perf_counter() - start
+    assert result.message == "deadline reached"
+    assert 1 <= result.nit < 10  # a few 2 ms iterations fit, not ten thousand
+    assert elapsed < 0.01 + 0.05  # checked between iterations: at most one overruns
+    assert result.fun == result.history_fun[-1] == slow_sphere(result.x[None])[0]
+
+
+def test_without_a_deadline_nothing_changes():
+    bounds = Bounds(np.full(4, -5.0), np.full(4, 5.0))
+    optimizer = get_optimizer("pso")
+    plain = optimizer.minimize(
+        lambda x: np.sum(x**2, axis=1), bounds, np.random.default_rng(1), Budget(300)
+    )
+    generous = optimizer.minimize(
+        lambda x: np.sum(x**2, axis=1),
+        bounds,
+        np.random.default_rng(1),
+        Budget(300, deadline_s=60.0),
+    )
+    assert np.array_equal(plain.x, generous.x) and plain.nfev == generous.nfev == 300
+
+
+@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), float("inf"), True, "1"])
+def test_a_bad_deadline_is_refused_naming_the_field(bad):
+    with pytest.raises(ValueError, match=r"Budget\.deadline_s must be a number > 0"):
+        Budget(100, deadline_s=bad)
+
+
+def test_a_deadline_joins_the_identity_only_when_set():
+    scenario, optimizer = get_scenario("paper"), get_optimizer("pso")
+    plain = RunSpec.of("pso", optimizer, "paper", scenario, trigger=True, seed=0)
+    timed = RunSpec.of("pso", optimizer, "paper", scenario, trigger=True, seed=0, deadline_ms=2)
+    assert "deadline_ms" not in plain.identity()["budget"]
+    assert timed.identity()["budget"]["deadline_ms"] == 2
+    assert plain.key != timed.key and timed.budget_label == "deadline_ms=2"
+    # a deadline alone caps the optimiser's own budget
+    assert timed.budget == Budget(
+        optimizer.default_budget.max_evaluations,
+        optimizer.default_budget.max_iterations,
+        deadline_s=0.002,
+    )
+
+
+def test_run_records_the_deadline_and_its_misses(tmp_path):
+    out = tmp_path / "run"
+    args = ["run", "--optimizer", "pso", "--no-figures", "--set", "n_steps=6"]
+    assert (
+        main([*args, "--set", "settle_time_s=0", "--deadline-ms", "0.001", "--out", str(out)]) == 0
+    )
+    (record,) = json.loads((out / "metrics.json").read_text())
+    assert record["budget_deadline_ms"] == 0.001 and record["budget"] == "deadline_ms=0.001"
+    # a microsecond is less than any solve takes: every solve misses it
+    assert record["deadline_misses"] == record["solves_total"] == 18
+    assert "--deadline-ms 0.001" in record["command"]
+
+
+def test_run_refuses_a_bad_deadline(tmp_path, capsys):
+    for bad in ("0", "-2", "soon", "nan"):
+        args = ["run", "--optimizer", "pso", "--deadline-ms", bad, "--out", str(tmp_path / "o")]
+        with pytest.raises(SystemExit) as stop:
+            main(args)
+        assert stop.value.code == 2
+        assert "--deadline-ms: must be a number of milliseconds > 0" in capsys.readouterr().err
+    too_long = ["run", "--optimizer", "pso", "--deadline-ms", "120000", "--out", str(tmp_path)]
+    assert main(too_long) == 2
+    assert "deadline_ms=120000 is more than 60,000" in capsys.readouterr().err
+
+
+def test_a_suite_budget_may_be_a_deadline(tmp_path):
+    text = 'seeds = 1\nbudgets = [{ deadline_ms = 2 }, "default"]\n'
+    text += '[[optimizers]]\nname = "pso"\n[[scenarios]]\nname = "paper"\n'
+    suite = parse_suite(text, tmp_path / "s.toml")
+    assert suite.budgets == ((None, None, 2.0), (None, None, None))
+    bad = text.replace("deadline_ms = 2", "deadline_ms = 0")
+    with pytest.raises(SuiteError, match=r"budgets\[0\]\.deadline_ms: must be a number"):
+        parse_suite(bad, tmp_path / "s.toml")
+
+
+@pytest.mark.parametrize(("name", "failures"), [("ipopt", "none"), ("ltv-osqp", "all")])
+def test_the_gradient_solvers_stop_at_the_deadline(name, failures, tmp_path):
+    out = tmp_path / name
+    args = ["run", "--optimizer", name, "--no-figures", "--set", "n_steps=4"]
+    code = main([*args, "--set", "settle_time_s=0", "--deadline-ms", "0.001", "--out", str(out)])
+    assert code == 0
+    (record,) = json.loads((out / "metrics.json").read_text())
+    assert record["deadline_misses"] == record["solves_total"] == 12
+    # IPOPT's iterate at its wall-time limit is used; OSQP's first QP cannot finish in a
+    # microsecond, so each UAV keeps its shifted plan and the failure is counted
+    expected = 0 if failures == "none" else record["solves_total"]
+    assert record["solve_failures"] == expected
