@@ -53,6 +53,7 @@ examples:
   formation-bench run --optimizer modified-bso --set scenario.reference=s-curve --out out/s
   formation-bench sweep paper --out results/paper --jobs 2
   formation-bench report results/paper
+  formation-bench score --optimizer pso --budgets default 1200 --seeds 0 1 --out results/score
   formation-bench --plugin my_search.py run --optimizer my-random-search --out out/mine
 """
 

@@ -43,6 +43,18 @@ def _jobs(text: str) -> int:
     return value
 
 
+def _seed_value(text: str) -> int:
+    from formation_bench.benchmarks.cli import _seed
+
+    return _seed(text)
+
+
+def _deadline_value(text: str) -> float:
+    from formation_bench.benchmarks.cli import _deadline
+
+    return _deadline(text)
+
+
 def _scheduler(text: str) -> str:
     try:
         return check_scheduler_address(text)
@@ -96,31 +108,104 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return summary.exit_code
 
 
+def _score_budget(text: str) -> tuple[int | None, int | None]:
+    if text == "default":
+        return (None, None)
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(
+            f"must be 'default' or a number of evaluations >= 1, got {text!r}"
+        )
+    return (value, None)
+
+
+def cmd_score(args: argparse.Namespace) -> int:
+    from formation_bench.benchmarks.cli import UsageError, parse_value
+    from formation_bench.benchmarks.experiments.score import run_scores, score_runs
+    from formation_bench.plugins import loaded_plugins
+
+    out = Path(args.out)
+    try:
+        check_output_folder(out, overwrite=True)  # score runs resume, like a sweep
+    except OutputError as err:
+        raise SweepError(str(err)) from None
+    overrides = {}
+    for assignment in args.set or []:
+        name, sep, raw = assignment.partition("=")
+        if not sep or not name:
+            raise UsageError(f"--set expects FIELD=VALUE, got {assignment!r}")
+        overrides[name.removeprefix("optimizer.")] = parse_value(raw)
+    from formation_bench.optimizers import OPTIMIZERS
+
+    if args.optimizer not in OPTIMIZERS:
+        allowed = ", ".join(sorted(OPTIMIZERS))
+        raise UsageError(f"--optimizer: unknown name {args.optimizer!r}; allowed: {allowed}")
+    try:
+        runs = score_runs(
+            args.optimizer,
+            overrides,
+            list(dict.fromkeys(args.budgets)),
+            list(dict.fromkeys(args.seeds)),
+            deadline_ms=args.deadline_ms,
+            plugins=loaded_plugins(),
+        )
+    except (ValueError, TypeError) as err:
+        raise UsageError(f"--set: {err}") from None
+    start = time.perf_counter()
+    done = 0
+    for run in run_scores(runs, out, jobs=args.jobs):
+        done += 1
+        print(f"  stored {run.optimizer_label} / {run.budget_label} / seed {run.seed}", flush=True)
+    print(
+        f"{len(runs)} score runs ({done} new) of {runs[0].optimizer_label} on library "
+        f"{runs[0].library_version} in {out}/score ({time.perf_counter() - start:.1f} s); "
+        f"formation-bench report {out} writes the statistics"
+    )
+    return 0
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     # the statistics and plotting libraries are imported only by the command that uses them
     from formation_bench.benchmarks.analysis.report import ReportError, make_report
 
     start = time.perf_counter()
     results = Path(args.results)
-    if not (results / "runs").is_dir():
-        raise StoreError(f"{results} holds no results (no runs/ folder); run a sweep into it first")
+    has_runs, has_scores = (results / "runs").is_dir(), (results / "score").is_dir()
+    if not has_runs and not has_scores:
+        raise StoreError(
+            f"{results} holds no results (no runs/ or score/ folder); run a sweep or score "
+            "into it first"
+        )
     folder = Path(args.out) if args.out is not None else results / "report"
+    written = []
     try:
         with staged_folder(folder, overwrite=args.overwrite) as staging:
-            _, headline, _ = make_report(
-                results,
-                staging,
-                baseline=args.baseline,
-                compare=args.compare,
-                figures=args.figures,
-            )
+            if has_runs:
+                _, headline, _ = make_report(
+                    results,
+                    staging,
+                    baseline=args.baseline,
+                    compare=args.compare,
+                    figures=args.figures,
+                )
+                print(headline)
+                written.append(
+                    "report.md, summary.csv, wilcoxon.csv, friedman.csv, ranks.csv, nemenyi.csv"
+                )
+            if has_scores:
+                from formation_bench.benchmarks.analysis.score_report import write_score_report
+                from formation_bench.benchmarks.experiments.score import load_scores
+
+                print(write_score_report(load_scores(results), staging, figures=args.figures))
+                written.append("score.md, score_summary.csv, score_ert.csv, score_profile.csv")
     except (ReportError, OutputError) as err:
         print(f"formation-bench report: error: {err}", file=sys.stderr)
         return 2
-    print(headline)
     print(
-        f"wrote {folder}/report.md, summary.csv, wilcoxon.csv, friedman.csv, ranks.csv, "
-        f"nemenyi.csv{' and figures/' if args.figures else ''} "
+        f"wrote {folder}/{', '.join(written)}{' and figures/' if args.figures else ''} "
         f"({time.perf_counter() - start:.1f} s)"
     )
     return 0
@@ -165,6 +250,40 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
     )
     sweep.add_argument("--dry-run", action="store_true", help="list the runs still to do and exit")
     sweep.set_defaults(func=_guarded("sweep", cmd_sweep))
+
+    score = sub.add_parser(
+        "score",
+        help="solve every instance of the library with one optimiser (resumable) into DIR",
+        description="Run an optimiser on the instance library (recorded local problems with "
+        "best-known optima J*) at each budget and seed; 'report DIR' gives gaps, success "
+        "rates, ERT, ECDFs and performance profiles.",
+    )
+    score.add_argument("--optimizer", required=True, help="registered optimizer name")
+    score.add_argument(
+        "--set", action="append", metavar="FIELD=VALUE", help="override an optimizer field"
+    )
+    score.add_argument(
+        "--budgets",
+        nargs="+",
+        type=_score_budget,
+        default=[(None, None)],
+        metavar="B",
+        help="per-solve budgets: 'default' (the optimizer's own) or evaluations (default: default)",
+    )
+    score.add_argument(
+        "--seeds", nargs="+", type=_seed_value, default=[0], help="seeds (default 0)"
+    )
+    score.add_argument(
+        "--deadline-ms", type=_deadline_value, metavar="MS", help="per-solve wall-clock deadline"
+    )
+    score.add_argument("--out", required=True, help="results folder (resumed if it exists)")
+    score.add_argument(
+        "--jobs",
+        type=_jobs,
+        default=DEFAULT_JOBS,
+        help=f"worker processes (default {DEFAULT_JOBS})",
+    )
+    score.set_defaults(func=_guarded("score", cmd_score))
 
     report = sub.add_parser(
         "report",

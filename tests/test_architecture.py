@@ -108,8 +108,10 @@ def test_the_wheel_installs_one_top_level_package_with_its_data(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     top = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
     assert top == {"formation_bench"}
-    for shipped in ("ablation", "comparison", "paper", "trigger"):
+    for shipped in ("ablation", "comparison", "deadline", "paper", "trigger"):
         assert f"formation_bench/benchmarks/experiments/suites/{shipped}.toml" in names
+    for data in ("v1.npz", "v1.json"):
+        assert f"formation_bench/benchmarks/instances/data/{data}" in names
     assert "formation_bench/py.typed" in names
     assert "formation_bench/mpc/solvers/ipopt_solver.py" in names
     meta = next(n for n in names if n.endswith(".dist-info/entry_points.txt"))

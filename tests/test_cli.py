@@ -258,7 +258,7 @@ def test_the_trace_columns_are_documented_as_written(tmp_path):
 
 
 def test_help_texts_carry_no_markup(capsys):
-    for command in ([], ["run"], ["reproduce"], ["list"], ["sweep"], ["report"]):
+    for command in ([], ["run"], ["reproduce"], ["list"], ["sweep"], ["score"], ["report"]):
         with pytest.raises(SystemExit):
             main([*command, "--help"])
         text = capsys.readouterr().out

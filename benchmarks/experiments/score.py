@@ -1,0 +1,231 @@
+"""Scoring an optimiser on the instance library: every instance solved, stored per run.
+
+A *score run* is one optimiser configuration at one budget with one seed, solving every
+instance of the library from its warm start. Its rows (one per instance: the final cost, the
+gap to ``J*``, evaluations, iterations, wall time, and the evaluations to each target gap)
+are stored as ``DIR/score/<key>.parquet``, written atomically when the run is complete, so an
+interrupted ``score`` resumes with the runs still missing. Runs go to local worker processes
+(joblib's loky backend). Instance ``k`` of a run draws its random numbers from
+``SeedSequence([run entropy, k])``, so results do not depend on the worker count.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from formation_bench.benchmarks.analysis.scoring import TARGETS, evaluations_to_target
+from formation_bench.benchmarks.instances.library import Library, shipped
+from formation_bench.benchmarks.outputs import atomic_write_bytes
+from formation_bench.benchmarks.spec import (
+    canonical_json,
+    from_json_value,
+    labelled,
+    with_deadline,
+)
+from formation_bench.optimizers import Budget, Optimizer, get_optimizer
+from formation_bench.plugins import load_plugins
+
+SCORE = "score"
+"""Subfolder of a results folder that holds score runs."""
+
+
+def target_column(target: float) -> str:
+    """Column of the evaluations to reach ``target`` (e.g. ``evals_to_1e-03``)."""
+    return f"evals_to_{target:.0e}"
+
+
+@dataclass(frozen=True)
+class ScoreRun:
+    """One optimiser configuration at one budget with one seed, over the whole library."""
+
+    optimizer_label: str
+    optimizer_name: str
+    optimizer_overrides: str
+    """Canonical JSON of the fields changed from the registered configuration."""
+    max_evaluations: int | None
+    """Per-solve evaluation budget; None with ``max_iterations`` None: the optimiser's own."""
+    max_iterations: int | None
+    deadline_ms: float | None
+    seed: int
+    library_version: str
+    plugins: tuple[str, ...] = ()
+
+    @property
+    def budget_label(self) -> str:
+        from formation_bench.benchmarks.spec import budget_label
+
+        return budget_label(self.max_evaluations, self.max_iterations, self.deadline_ms)
+
+    def identity(self) -> dict[str, Any]:
+        return {
+            "optimizer": self.optimizer_name,
+            "optimizer_overrides": json.loads(self.optimizer_overrides),
+            "max_evaluations": self.max_evaluations,
+            "max_iterations": self.max_iterations,
+            "deadline_ms": self.deadline_ms,
+            "seed": self.seed,
+            "library": self.library_version,
+        }
+
+    @property
+    def key(self) -> str:
+        return hashlib.sha256(canonical_json(self.identity()).encode()).hexdigest()[:24]
+
+    @property
+    def entropy(self) -> int:
+        digest = hashlib.sha256(
+            b"formation-bench score\0" + canonical_json(self.identity()).encode()
+        )
+        return int.from_bytes(digest.digest()[:16], "big")
+
+    def optimizer(self) -> Optimizer:
+        return get_optimizer(
+            self.optimizer_name, **from_json_value(json.loads(self.optimizer_overrides))
+        )
+
+    def budget(self, optimizer: Optimizer) -> Budget | None:
+        limits = (
+            None
+            if self.max_evaluations is None and self.max_iterations is None
+            else Budget(self.max_evaluations, self.max_iterations)
+        )
+        return with_deadline(limits, self.deadline_ms, optimizer)
+
+
+def score_runs(
+    optimizer_name: str,
+    overrides: dict[str, Any],
+    budgets: list[tuple[int | None, int | None]],
+    seeds: list[int],
+    *,
+    deadline_ms: float | None = None,
+    library: Library | None = None,
+    plugins: tuple[str, ...] = (),
+) -> list[ScoreRun]:
+    """The score runs of one optimiser configuration at every budget and seed."""
+    library = shipped() if library is None else library
+    configured = get_optimizer(optimizer_name, **overrides)
+    label, changed = labelled(optimizer_name, get_optimizer(optimizer_name), configured)
+    return [
+        ScoreRun(
+            optimizer_label=label,
+            optimizer_name=optimizer_name,
+            optimizer_overrides=canonical_json(changed),
+            max_evaluations=max_evaluations,
+            max_iterations=max_iterations,
+            deadline_ms=deadline_ms,
+            seed=seed,
+            library_version=library.version,
+            plugins=plugins,
+        )
+        for max_evaluations, max_iterations in budgets
+        for seed in seeds
+    ]
+
+
+def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame:
+    """Solve every instance once; one row per instance."""
+    from threadpoolctl import threadpool_limits
+
+    load_plugins(run.plugins)
+    library = shipped() if library is None else library
+    optimizer = run.optimizer()
+    budget = run.budget(optimizer)
+    rows = []
+    with threadpool_limits(limits=1):
+        for instance in library:
+            problem = instance.problem
+            rng = np.random.default_rng(np.random.SeedSequence([run.entropy, instance.index]))
+            start = time.perf_counter()
+            result = optimizer.minimize(problem, problem.bounds, rng, budget, instance.warm_start)
+            seconds = time.perf_counter() - start
+            history_nfev = result.history_nfev if result.history_nfev.size else [result.nfev]
+            history_fun = result.history_fun if result.history_fun.size else [result.fun]
+            rows.append(
+                {
+                    "instance": instance.index,
+                    "scenario": instance.scenario_name,
+                    "trigger": instance.trigger,
+                    "step": instance.step,
+                    "j_star": instance.j_star,
+                    "fun": float(result.fun),
+                    "gap": float(instance.gap(result.fun)),
+                    "nfev": int(result.nfev),
+                    "nit": int(result.nit),
+                    "seconds": seconds,
+                    "success": bool(result.success),
+                    **{
+                        target_column(t): evaluations_to_target(
+                            np.asarray(history_nfev), np.asarray(history_fun), instance.j_star, t
+                        )
+                        for t in TARGETS
+                    },
+                }
+            )
+    frame = pd.DataFrame(rows)
+    frame.insert(0, "run_key", run.key)
+    frame.insert(1, "optimizer", run.optimizer_label)
+    frame.insert(2, "optimizer_name", run.optimizer_name)
+    frame.insert(3, "optimizer_overrides", run.optimizer_overrides)
+    frame.insert(4, "budget", run.budget_label)
+    frame.insert(5, "budget_max_evaluations", pd.array([run.max_evaluations] * len(frame), "Int64"))
+    frame.insert(6, "deadline_ms", float("nan") if run.deadline_ms is None else run.deadline_ms)
+    frame.insert(7, "seed", run.seed)
+    frame.insert(8, "library", run.library_version)
+    return frame
+
+
+def stored_keys(out: Path) -> set[str]:
+    folder = out / SCORE
+    return {p.stem for p in folder.glob("*.parquet")} if folder.is_dir() else set()
+
+
+def write_score(out: Path, run: ScoreRun, frame: pd.DataFrame) -> Path:
+    path = out / SCORE / f"{run.key}.parquet"
+    buffer = io.BytesIO()
+    pq.write_table(pa.Table.from_pandas(frame, preserve_index=False), buffer, compression="zstd")
+    atomic_write_bytes(path, buffer.getvalue())
+    return path
+
+
+def run_scores(runs: list[ScoreRun], out: Path, *, jobs: int = 2) -> Iterator[ScoreRun]:
+    """Carry out the runs not yet stored in ``out``; yields each as it is stored."""
+    todo = [run for run in runs if run.key not in stored_keys(out)]
+    if jobs == 1 or len(todo) <= 1:
+        for run in todo:
+            write_score(out, run, execute_score(run))
+            yield run
+        return
+    from joblib import Parallel, delayed, parallel_config
+
+    with parallel_config(backend="loky", inner_max_num_threads=1):
+        parallel = Parallel(n_jobs=jobs, return_as="generator_unordered", batch_size=1)
+        for run, frame in parallel(delayed(_execute_pair)(run) for run in todo):
+            write_score(out, run, frame)
+            yield run
+
+
+def _execute_pair(run: ScoreRun) -> tuple[ScoreRun, pd.DataFrame]:
+    return run, execute_score(run)
+
+
+def load_scores(out: Path | str) -> pd.DataFrame:
+    """Every stored score row of ``out``, one row per (run, instance)."""
+    folder = Path(out) / SCORE
+    paths = sorted(folder.glob("*.parquet")) if folder.is_dir() else []
+    if not paths:
+        raise FileNotFoundError(f"{out} holds no score runs (no {SCORE}/*.parquet)")
+    frame = pd.concat([pd.read_parquet(p) for p in paths], ignore_index=True)
+    return frame.sort_values(["optimizer", "budget", "seed", "instance"], ignore_index=True)
