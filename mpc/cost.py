@@ -9,20 +9,34 @@ The integral of eq. (5) is the right-endpoint rectangle rule on the control
 grid: the state at t_c does not depend on the decision, so leaving it out
 changes no minimiser.
 
-The compiled kernel precomputes everything that does not depend on the
+The compiled kernels precompute everything that does not depend on the
 decision: the distance targets ``p_hat_j + p_ij^d`` and the centre target
 ``N * p_c^d - sum_j p_hat_j`` (then the centre term is
-``w_trj / N^2 * ||p_i - target||^2``). :func:`reference_cost` evaluates the
-formula as printed, one point at a time, with a textbook RK4; tests check the
-two agree.
+``w_trj / N^2 * ||p_i - target||^2``). :func:`batch_cost` integrates the
+model as the plant does (:func:`formation_bench.mpc.model.advance_period`: the
+heading's cosine and sine from a vectorisable polynomial at each period start,
+rotations within the period) and advances all candidates together;
+:func:`batch_cost_reference` is the straightforward kernel, three sin/cos pairs
+per RK4 sub-step; :func:`reference_cost` evaluates the formula
+as printed, one point at a time, with a textbook RK4. Tests check the three
+agree.
 """
 
 from __future__ import annotations
 
+import math
+
 import numba as nb
 import numpy as np
 
-from formation_bench.mpc.model import rk4_substep
+from formation_bench.mpc.model import (
+    HEADING_RESET_SUBSTEPS,
+    REDUCTION_LIMIT,
+    reduced_cos_sin,
+    rk4_substep,
+    rotated_substep,
+    turn_rotation,
+)
 
 
 @nb.njit(cache=True)
@@ -42,6 +56,83 @@ def batch_cost(
     ``distance_targets`` is ``(J, H, 2)``, ``centre_target`` ``(H, 2)``,
     ``block_of_step`` ``(H,)`` maps each period to its control block, and
     ``w_centre`` is ``w_trj / N**2``.
+
+    Each period is :func:`~formation_bench.mpc.model.advance_period` for every
+    candidate, written out with the candidates innermost: the same operations
+    on each candidate in the same order, so the predicted positions are the
+    plant's to the bit, while the sub-steps, free of calls, run several
+    candidates per instruction. The turn's cosine and sine are taken once
+    per block, the heading's at each period start and every
+    ``HEADING_RESET_SUBSTEPS`` sub-steps within a period.
+    """
+    n = decisions.shape[0]
+    horizon = block_of_step.shape[0]
+    n_neighbours = distance_targets.shape[0]
+    h = period / substeps
+    # one row per quantity, one column per candidate: the loops over the
+    # candidates then run over contiguous memory, and one allocation serves all
+    work = np.empty((13, n))
+    x, y, theta, v, cos_t, sin_t = work[0], work[1], work[2], work[3], work[4], work[5]
+    accel, omega, cos_half, sin_half = work[6], work[7], work[8], work[9]
+    cos_full, sin_full, total = work[10], work[11], work[12]
+    for i in range(n):
+        x[i], y[i], theta[i], v[i] = state[0], state[1], state[2], state[3]
+        total[i] = 0.0
+    current_block = -1
+    for k in range(horizon):
+        block = block_of_step[k]
+        if block != current_block:
+            current_block = block
+            for i in range(n):
+                accel[i] = decisions[i, 2 * block]
+                omega[i] = decisions[i, 2 * block + 1]
+                cos_half[i], sin_half[i], cos_full[i], sin_full[i] = turn_rotation(omega[i], h)
+        for m in range(substeps):
+            if m % HEADING_RESET_SUBSTEPS == 0:
+                # cos_sin(theta) of every candidate, split so that the common case vectorises
+                for i in range(n):
+                    cos_t[i], sin_t[i] = reduced_cos_sin(theta[i])
+                for i in range(n):
+                    if not abs(theta[i]) < REDUCTION_LIMIT:
+                        cos_t[i], sin_t[i] = math.cos(theta[i]), math.sin(theta[i])
+            for i in range(n):
+                x[i], y[i], cos_t[i], sin_t[i], v[i] = rotated_substep(
+                    x[i], y[i], cos_t[i], sin_t[i], v[i], accel[i], h,
+                    cos_half[i], sin_half[i], cos_full[i], sin_full[i],
+                )  # fmt: skip
+                theta[i] = theta[i] + h * omega[i]
+        for i in range(n):
+            formation = 0.0
+            for j in range(n_neighbours):
+                dx = x[i] - distance_targets[j, k, 0]
+                dy = y[i] - distance_targets[j, k, 1]
+                formation += dx * dx + dy * dy
+            cx = x[i] - centre_target[k, 0]
+            cy = y[i] - centre_target[k, 1]
+            total[i] += w_dst * formation + w_centre * (cx * cx + cy * cy)
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = total[i] * period
+    return out
+
+
+@nb.njit(cache=True)
+def batch_cost_reference(
+    decisions: np.ndarray,
+    state: np.ndarray,
+    block_of_step: np.ndarray,
+    period: float,
+    substeps: int,
+    distance_targets: np.ndarray,
+    centre_target: np.ndarray,
+    w_dst: float,
+    w_centre: float,
+) -> np.ndarray:
+    """:func:`batch_cost` by :func:`~formation_bench.mpc.model.rk4_substep`, one row at a time.
+
+    The kernel before the rotation form, kept as its yardstick and as the
+    "before" of the speed benchmark; it agrees with :func:`batch_cost` to
+    rounding, not to the bit.
     """
     n = decisions.shape[0]
     horizon = block_of_step.shape[0]

@@ -1,11 +1,11 @@
-"""Smoke tests of the scaling benchmark and the pytest-benchmark timing suite."""
+"""Smoke tests of the scaling benchmark, the kernel comparison and the pytest-benchmark suite."""
 
 import json
 import subprocess
 import sys
 from pathlib import Path
 
-from formation_bench.benchmarks.perf import scaling
+from formation_bench.benchmarks.perf import population_speed, scaling, speed
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -58,3 +58,15 @@ def test_timing_suite_collects_every_optimizer_and_runs(tmp_path):
     assert names == {"test_solve_time[modified-bso-default]", "test_solve_time[pso-equal-1200]"}
     assert data["machine_info"]["cpu_affinity"]
     assert all(b["stats"]["rounds"] == 27 for b in data["benchmarks"])
+
+
+def test_kernel_comparison_times_both_kernels_on_paper_problems():
+    instants = population_speed.paper_instants((5,))
+    figures = speed.kernel_comparison(instants, speed.default_population_size(), 3, number=5)
+    assert figures["kernel_population"] == 30 and figures["kernel_problems"] == 3
+    assert figures["kernel_reference_per_eval_s"] > 0 and figures["kernel_rotation_per_eval_s"] > 0
+    low, high = figures["kernel_ratio_quartiles"]
+    assert 0 < low <= figures["kernel_ratio_median"] <= high
+    assert figures["kernel_max_relative_difference"] < 1e-12
+    table = speed.format_kernel_comparison(figures)
+    assert "ns per evaluation" in table and "ratio now / before, per repeat (3 repeats)" in table

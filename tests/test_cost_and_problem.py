@@ -1,11 +1,12 @@
-"""The compiled cost against eq. (14) as printed; plans, estimates and warm starts."""
+"""The compiled cost against eq. (14) as printed and the plant; plans, estimates and warm starts."""
 
 import math
 
 import numpy as np
 import pytest
 
-from formation_bench.mpc.cost import batch_cost, block_map
+from formation_bench.mpc.cost import batch_cost, batch_cost_reference, block_map
+from formation_bench.mpc.model import REDUCTION_LIMIT, step_plant
 from formation_bench.mpc.problem import (
     LocalProblem,
     Plan,
@@ -42,6 +43,104 @@ def test_compiled_cost_matches_plain_eq14(n_blocks, substeps, w_dst, w_trj):
         compiled = problem(decisions)
         plain = np.array([problem.reference_cost(d) for d in decisions])
         np.testing.assert_allclose(compiled, plain, rtol=1e-9)
+
+
+def random_kernel_inputs(rng, horizon, n_blocks, n_neighbours, n):
+    """State, targets and decisions for the kernels, decisions inside the paper's bounds."""
+    state = np.array(
+        [rng.normal(0, 20), rng.normal(0, 20), rng.uniform(-math.pi, math.pi), rng.uniform(5, 20)]
+    )
+    distance_targets = rng.normal(0, 30, size=(n_neighbours, horizon, 2))
+    centre_target = rng.normal(0, 30, size=(horizon, 2))
+    decisions = rng.uniform([-7.0, -0.25] * n_blocks, [7.0, 0.25] * n_blocks, (n, 2 * n_blocks))
+    return state, distance_targets, centre_target, decisions
+
+
+# (horizon, n_blocks, substeps): one block, several, one per period, uneven blocks, sub-steps
+# across the heading reset, and the longest horizon the scenarios allow with long periods
+KERNEL_LAYOUTS = [
+    (1, 1, 1),
+    (20, 5, 1),
+    (20, 20, 1),
+    (20, 1, 3),
+    (7, 3, 16),
+    (13, 4, 17),
+    (40, 6, 50),
+    (500, 1, 1),
+    (500, 37, 2),
+    (500, 1, 1000),
+]
+# (w_dst, w_centre): both terms, each alone, and large weights
+KERNEL_WEIGHTS = [(1.0, 1.0 / 3.0), (0.0, 1.0), (2.5, 0.0), (40.0, 7.0)]
+
+
+@pytest.mark.parametrize("weights", KERNEL_WEIGHTS)
+@pytest.mark.parametrize(("horizon", "n_blocks", "substeps"), KERNEL_LAYOUTS)
+def test_rotation_kernel_matches_reference_kernel(horizon, n_blocks, substeps, weights):
+    seed = [horizon, n_blocks, substeps, KERNEL_WEIGHTS.index(weights)]
+    rng = np.random.default_rng(seed)
+    n = 4 if horizon * substeps > 10_000 else 40
+    for n_neighbours in (1, 2, 4):
+        state, distance_targets, centre_target, decisions = random_kernel_inputs(
+            rng, horizon, n_blocks, n_neighbours, n
+        )
+        args = (state, block_map(horizon, n_blocks), 0.2, substeps, distance_targets,
+                centre_target, *weights)  # fmt: skip
+        rotated = batch_cost(decisions, *args)
+        plain = batch_cost_reference(decisions, *args)
+        assert np.all(plain > 0)
+        np.testing.assert_allclose(rotated, plain, rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("theta", [1e3, 1e5, REDUCTION_LIMIT + 0.1, -3e6, 1e9])
+def test_rotation_kernel_matches_reference_at_large_headings(theta):
+    """Large headings, up to and past the polynomial reduction's range (math.cos/sin there).
+
+    The reference rounds its middle-stage heading ``theta + h omega / 2`` to the
+    spacing of the floats near ``theta``, where the rotation turns by the exact
+    half turn: the two then agree to about that spacing, relative, not better.
+    """
+    rng = np.random.default_rng(11)
+    state, distance_targets, centre_target, decisions = random_kernel_inputs(rng, 20, 4, 2, 30)
+    state[2] = theta
+    args = (state, block_map(20, 4), 0.2, 2, distance_targets, centre_target, 1.0, 0.5)
+    np.testing.assert_allclose(
+        batch_cost(decisions, *args),
+        batch_cost_reference(decisions, *args),
+        rtol=max(1e-12, float(np.spacing(abs(theta)))),
+    )
+
+
+def plant_path(state, decision, block_of_step, period, substeps):
+    """Positions the plant reaches, one period at a time, under a decision's block controls."""
+    controls = decision.reshape(-1, 2)[block_of_step]
+    states = [state]
+    for k in range(len(block_of_step)):
+        states.append(step_plant(states[-1][None], controls[k : k + 1], period, substeps)[0])
+    return np.array(states)[1:, :2]
+
+
+@pytest.mark.parametrize(
+    ("horizon", "n_blocks", "substeps", "theta"),
+    [(20, 5, 1, 0.4), (20, 20, 1, -2.9), (9, 2, 3, 1.0), (11, 3, 37, 5.5), (6, 2, 2, -4e6)],
+)
+def test_kernel_prediction_is_the_plant_to_the_bit(horizon, n_blocks, substeps, theta):
+    """A plan's predicted positions are those the plant reaches under it, to the last bit.
+
+    With the plant's own positions as every target, each term of the cost is
+    zero only if the kernel's position equals the plant's exactly.
+    """
+    rng = np.random.default_rng([horizon, substeps])
+    block_of_step = block_map(horizon, n_blocks)
+    state = np.array([12.0, -30.0, theta, 14.0])
+    decisions = rng.uniform([-7.0, -0.25] * n_blocks, [7.0, 0.25] * n_blocks, (9, 2 * n_blocks))
+    for row, decision in enumerate(decisions):
+        path = plant_path(state, decision, block_of_step, 0.2, substeps)
+        targets = (np.ascontiguousarray(np.stack([path, path])), path)
+        costs = batch_cost(decisions, state, block_of_step, 0.2, substeps, *targets, 1.0, 0.3)
+        assert costs[row] == 0.0
+        others = np.delete(costs, row)
+        assert np.all(others > 0)
 
 
 def test_cost_is_zero_on_a_perfect_plan_and_positive_off_it():

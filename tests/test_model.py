@@ -5,7 +5,17 @@ import math
 import numpy as np
 import pytest
 
-from formation_bench.mpc.model import coast, rollout, rollout_batch, step_plant
+from formation_bench.mpc.model import (
+    REDUCTION_LIMIT,
+    coast,
+    cos_sin,
+    rk4_substep,
+    rollout,
+    rollout_batch,
+    rotated_substep,
+    step_plant,
+    turn_rotation,
+)
 
 
 def test_straight_line_with_constant_acceleration_is_exact():
@@ -54,3 +64,62 @@ def test_coast_is_zero_control_rollout():
     positions = coast(state, np.arange(1, 11) * 0.2)
     states = rollout(state, np.zeros((10, 2)), 0.2, 1)
     np.testing.assert_allclose(positions, states[1:, :2], atol=1e-12)
+
+
+def test_cos_sin_is_within_a_rounding_of_math():
+    rng = np.random.default_rng(8)
+    near_quadrants = np.arange(-4000, 4000) * (math.pi / 2)
+    angles = np.concatenate(
+        [
+            rng.uniform(-4.0, 4.0, 20_000),
+            rng.uniform(-1e3, 1e3, 20_000),
+            rng.uniform(-REDUCTION_LIMIT, REDUCTION_LIMIT, 20_000),
+            near_quadrants,
+            near_quadrants + rng.normal(0, 1e-9, near_quadrants.size),
+            [0.0, -0.0, math.pi / 4, -math.pi / 4, 1e-300],
+        ]
+    )
+    for angle in angles:
+        cos, sin = cos_sin(angle)
+        assert abs(cos - math.cos(angle)) <= 2.3e-16
+        assert abs(sin - math.sin(angle)) <= 2.3e-16
+    # past the reduction's range, and for NaN and infinities, math's own values
+    for angle in (REDUCTION_LIMIT, -REDUCTION_LIMIT * 3.7, 1e300):
+        assert cos_sin(angle) == (math.cos(angle), math.sin(angle))
+    for angle in (math.nan, math.inf, -math.inf):
+        assert all(math.isnan(value) for value in cos_sin(angle))
+
+
+def test_rotated_substep_is_the_plain_rk4_substep():
+    rng = np.random.default_rng(9)
+    for _ in range(2000):
+        x, y, v = rng.normal(0, 100), rng.normal(0, 100), rng.uniform(0, 30)
+        theta, a, omega = rng.uniform(-10, 10), rng.uniform(-7, 7), rng.uniform(-3, 3)
+        h = rng.uniform(0.001, 0.5)
+        plain = rk4_substep(x, y, theta, v, a, omega, h)
+        cos_half, sin_half, cos_full, sin_full = turn_rotation(omega, h)
+        assert cos_half**2 + sin_half**2 == pytest.approx(1.0, abs=4e-16)
+        assert cos_full**2 + sin_full**2 == pytest.approx(1.0, abs=8e-16)
+        x1, y1, cos_end, sin_end, v_end = rotated_substep(
+            x, y, math.cos(theta), math.sin(theta), v, a, h, *turn_rotation(omega, h)
+        )
+        scale = abs(x) + abs(y) + v * h
+        assert x1 == pytest.approx(plain[0], abs=4e-16 * scale)
+        assert y1 == pytest.approx(plain[1], abs=4e-16 * scale)
+        assert cos_end == pytest.approx(math.cos(plain[2]), abs=2e-15)
+        assert sin_end == pytest.approx(math.sin(plain[2]), abs=2e-15)
+        assert v_end == plain[3]
+
+
+@pytest.mark.parametrize("substeps", [1, 2, 16, 17, 40])
+def test_plant_steps_reproduce_the_plan_to_the_bit(substeps):
+    """Stepped one period at a time, the plant is exactly where a plan's rollout predicts."""
+    rng = np.random.default_rng(substeps)
+    state = np.array([-3.0, 8.0, 2.2, 11.0])
+    # a blocked plan: controls held over runs of periods, as the decision blocks hold them
+    controls = np.repeat(rng.uniform([-7, -0.25], [7, 0.25], size=(5, 2)), 4, axis=0)
+    plan = rollout(state, controls, 0.2, substeps)
+    plant = [state]
+    for k in range(len(controls)):
+        plant.append(step_plant(plant[-1][None], controls[k : k + 1], 0.2, substeps)[0])
+    np.testing.assert_array_equal(np.array(plant), plan)
