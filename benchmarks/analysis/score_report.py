@@ -3,7 +3,7 @@
 Per optimiser and budget, over every (instance, seed) trial: the relative gap to ``J*``
 (median, IQR, bootstrap 95 % CI of the median), success rates at 1e-2, 1e-3 and 1e-4,
 COCO's expected running time to each target, the shifted geometric mean of solve time with
-failures (final gap above 1e-3) charged at the slowest solve of the whole table, and the
+failures (final gap above 1e-3) charged at the slowest solve at the same budget, and the
 Dolan-More performance profile of solve time over the instances (a failure never counts).
 Files: ``score.md``, ``score_summary.csv``, ``score_ert.csv``, ``score_profile.csv`` and,
 with figures, ``figures/score_ecdf.png`` (targets reached against evaluations) and
@@ -41,7 +41,8 @@ GROUP = ["optimizer", "budget"]
 
 def summary_table(scores: pd.DataFrame) -> pd.DataFrame:
     """One row per optimiser and budget: gap statistics, success rates, solve time."""
-    slowest = float(scores["seconds"].max())
+    # a failure is charged at the slowest solve of any optimiser at the same budget
+    slowest = scores.groupby("budget")["seconds"].max()
     rows = []
     for (optimizer, budget), trials in scores.groupby(GROUP, sort=False):
         gaps = trials["gap"].to_numpy()
@@ -61,7 +62,7 @@ def summary_table(scores: pd.DataFrame) -> pd.DataFrame:
                 "nfev_median": float(trials["nfev"].median()),
                 "solve_time_median_s": float(trials["seconds"].median()),
                 "solve_time_sgm_s": shifted_geometric_mean(
-                    trials["seconds"].to_numpy(), TIME_SHIFT_S, failed, charge=slowest
+                    trials["seconds"].to_numpy(), TIME_SHIFT_S, failed, charge=slowest[budget]
                 ),
             }
         )
@@ -122,8 +123,9 @@ def to_markdown(summary: pd.DataFrame, library: str) -> str:
         f"# Score on the instance library {library}",
         "",
         f"Gap: (cost - J*) / J*, per (instance, seed) trial. Success: final gap <= target. "
-        f"Solve time: shifted geometric mean (shift {TIME_SHIFT_S * 1e3:g} ms), trials with a "
-        f"gap above {FAILURE_GAP:g} charged at the slowest solve in the table.",
+        f"Solve time: median, and shifted geometric mean (shift {TIME_SHIFT_S * 1e3:g} ms) with "
+        f"trials whose gap is above {FAILURE_GAP:g} charged at the slowest solve at the same "
+        "budget.",
         "",
     ]
     for budget, rows in summary.groupby("budget", sort=False):
@@ -131,8 +133,8 @@ def to_markdown(summary: pd.DataFrame, library: str) -> str:
             f"## budget {budget}",
             "",
             "| optimizer | trials | median gap [95 % CI] | IQR | success 1e-2 | 1e-3 | 1e-4 "
-            "| median evaluations | solve time (ms, sgm) |",
-            "|---|---|---|---|---|---|---|---|---|",
+            "| median evaluations | solve time median (ms) | sgm, failures charged (ms) |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for _, r in rows.iterrows():
             lines.append(
@@ -140,7 +142,7 @@ def to_markdown(summary: pd.DataFrame, library: str) -> str:
                 f"[{r['gap_ci_low']:.3g}, {r['gap_ci_high']:.3g}] | "
                 f"{r['gap_q1']:.3g} - {r['gap_q3']:.3g} | {r['success_1e-02']:.0%} | "
                 f"{r['success_1e-03']:.0%} | {r['success_1e-04']:.0%} | {r['nfev_median']:.0f} "
-                f"| {1e3 * r['solve_time_sgm_s']:.2f} |"
+                f"| {1e3 * r['solve_time_median_s']:.2f} | {1e3 * r['solve_time_sgm_s']:.1f} |"
             )
         lines.append("")
     return "\n".join(lines)

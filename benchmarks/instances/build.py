@@ -47,6 +47,8 @@ from formation_bench.mpc.problem import LocalProblem
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
 
+TIE_TOLERANCE = 1e-12
+"""A later method takes J* over only if it improves on it by more than this, relatively."""
 GRADIENT_SOLVERS = ("ipopt", "ltv-osqp")
 """Registered optimisers that solve only the MPC problem (searched apart, as IPOPT)."""
 
@@ -144,7 +146,8 @@ def best_known(
         nonlocal best
         x = bounds.clip(x)
         cost = float(problem(x[None])[0])
-        if cost < best[0]:
+        # a point as good up to rounding leaves J* to the method that reached it first
+        if cost < best[0] - TIE_TOLERANCE * abs(best[0]):
             best = (cost, x.copy(), method)
 
     ipopt_budget = Budget(max_iterations=plan.ipopt_iterations)
