@@ -16,6 +16,7 @@ from formation_bench.optimizers.base import (
 )
 from formation_bench.optimizers.chaos import ChaoticMap
 from formation_bench.optimizers.cls_bso import ChaoticLocalSearchBSO
+from formation_bench.optimizers.differential_evolution import DifferentialEvolution
 from formation_bench.optimizers.modified_bso import ModifiedBSO
 from formation_bench.optimizers.original_bso import OriginalBSO
 from formation_bench.optimizers.pso import PSO
@@ -30,6 +31,7 @@ __all__ = [
     "BudgetExhausted",
     "ChaoticLocalSearchBSO",
     "ChaoticMap",
+    "DifferentialEvolution",
     "EvaluationCounter",
     "ModifiedBSO",
     "OptimizeResult",

@@ -203,6 +203,16 @@ REGISTERED = {
         "Shi's BSO + chaotic local search around the best idea (after CBSO, Yu et al. 2018)",
         {},
     ),
+    "de": (
+        "DifferentialEvolution",
+        "Differential evolution DE/rand/1/bin (Storn & Price 1997), N = 30, F = 0.5, CR = 0.9",
+        {},
+    ),
+    "de-current-to-best": (
+        "DifferentialEvolution",
+        "Differential evolution DE/current-to-best/1/bin, N = 30, F = 0.5, CR = 0.9",
+        {"strategy": "current_to_best_1_bin"},
+    ),
     "ipopt": (
         "IpoptOptimizer",
         "IPOPT (CasADi nlpsol) on eq. (14), single shooting, warm primal + dual start; baseline",
@@ -325,6 +335,14 @@ CLASS_DEFAULTS = {
         "slope": 20.0,
         "step_relative_to_range": False,
         "step_scale": 1.0,
+    },
+    "DifferentialEvolution": {
+        "bound_handling": "resample",
+        "crossover_rate": 0.9,
+        "differential_weight": 0.5,
+        "max_iterations": 40,
+        "population_size": 30,
+        "strategy": "rand_1_bin",
     },
     "IpoptOptimizer": {
         "acceptable_tol": 0.0001,
