@@ -20,6 +20,7 @@ from formation_bench.optimizers.differential_evolution import DifferentialEvolut
 from formation_bench.optimizers.modified_bso import ModifiedBSO
 from formation_bench.optimizers.original_bso import OriginalBSO
 from formation_bench.optimizers.pso import PSO
+from formation_bench.optimizers.random_search import RandomSearch
 from formation_bench.optimizers.registry import OPTIMIZERS, get_optimizer, optimizer_names, register
 
 __all__ = [
@@ -38,6 +39,7 @@ __all__ = [
     "Optimizer",
     "OriginalBSO",
     "PopulationOptimizer",
+    "RandomSearch",
     "get_optimizer",
     "optimizer_names",
     "register",

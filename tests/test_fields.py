@@ -315,6 +315,11 @@ REGISTERED = {
         "Global-best PSO with Clerc-Kennedy constriction (chi = 0.7298, c1 = c2 = 1.49618)",
         {"c1": 1.49618, "c2": 1.49618, "inertia_end": 0.7298, "inertia_start": 0.7298},
     ),
+    "random-search": (
+        "RandomSearch",
+        "Uniform random search, 30 points per batch (the floor every optimiser must beat)",
+        {},
+    ),
 }
 
 CLASS_DEFAULTS = {
@@ -413,6 +418,10 @@ CLASS_DEFAULTS = {
         "max_iterations": 40,
         "population_size": 30,
         "velocity_clamp": 0.2,
+    },
+    "RandomSearch": {
+        "max_iterations": 40,
+        "population_size": 30,
     },
 }
 
