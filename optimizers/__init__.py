@@ -16,6 +16,7 @@ from formation_bench.optimizers.base import (
 )
 from formation_bench.optimizers.chaos import ChaoticMap
 from formation_bench.optimizers.cls_bso import ChaoticLocalSearchBSO
+from formation_bench.optimizers.cma_es import CMAES
 from formation_bench.optimizers.differential_evolution import DifferentialEvolution
 from formation_bench.optimizers.modified_bso import ModifiedBSO
 from formation_bench.optimizers.original_bso import OriginalBSO
@@ -24,6 +25,7 @@ from formation_bench.optimizers.random_search import RandomSearch
 from formation_bench.optimizers.registry import OPTIMIZERS, get_optimizer, optimizer_names, register
 
 __all__ = [
+    "CMAES",
     "OPTIMIZERS",
     "PSO",
     "BatchObjective",

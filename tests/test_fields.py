@@ -203,6 +203,21 @@ REGISTERED = {
         "Shi's BSO + chaotic local search around the best idea (after CBSO, Yu et al. 2018)",
         {},
     ),
+    "cma-es": (
+        "CMAES",
+        "CMA-ES (Hansen's tutorial defaults, active), sigma0 0.2 x range, restarts same lambda",
+        {},
+    ),
+    "cma-es-bipop": (
+        "CMAES",
+        "BIPOP-CMA-ES: large and small population restarts interleaved (Hansen 2009)",
+        {"restarts": "bipop"},
+    ),
+    "cma-es-ipop": (
+        "CMAES",
+        "IPOP-CMA-ES: restarts doubling the population (Auger & Hansen 2005)",
+        {"restarts": "ipop"},
+    ),
     "de": (
         "DifferentialEvolution",
         "Differential evolution DE/rand/1/bin (Storn & Price 1997), N = 30, F = 0.5, CR = 0.9",
@@ -323,6 +338,17 @@ REGISTERED = {
 }
 
 CLASS_DEFAULTS = {
+    "CMAES": {
+        "active": True,
+        "bound_handling": "reflect",
+        "lamarckian": False,
+        "max_evaluations": 1230,
+        "population_size": None,
+        "restarts": "same",
+        "sigma0": 0.2,
+        "tol_fun": 1e-12,
+        "tol_x": 1e-12,
+    },
     "ChaoticLocalSearchBSO": {
         "bound_handling": "clip",
         "kmeans_max_iter": 100,
