@@ -64,7 +64,7 @@ class DEConfig(Validated):
     )  # fmt: skip
     strategy: DEStrategy = setting(
         DEStrategy.RAND_1_BIN, kernel=True,
-        doc="Mutation: rand_1_bin or current_to_best_1_bin",
+        doc="Mutant: x_r1 + F (x_r2 - x_r3), or x_i + F (x_best - x_i + x_r1 - x_r2)",
     )  # fmt: skip
     differential_weight: float = setting(
         0.5, low=0.0, high=2.0, low_open=True, kernel=True,

@@ -16,10 +16,9 @@ Per generation, for every member ``x_i`` of the N-member population:
   member, so every trial differs from its target), else from ``x_i``;
 * **bounds**: a trial coordinate outside the box is re-drawn uniformly in its
   range (``bound_handling=resample``, the default: the rule of scipy's
-  ``differential_evolution`` and one of Price, Storn & Lampinen's (2005)
-  recommendations; it keeps the population's spread, where clipping would
-  pile members onto the faces). ``clip`` and ``reflect`` are the project's
-  other options. Only mutant coordinates can leave the box;
+  ``differential_evolution``, which keeps the population spread where
+  clipping would pile members onto the faces). ``clip`` and ``reflect`` are
+  the project's other options. Only mutant coordinates can leave the box;
 * **selection**: the N trials are evaluated in one batch, and trial ``i``
   replaces ``x_i`` when its cost is *no higher* (Storn & Price's rule; ties
   let the population cross plateaus).
