@@ -19,6 +19,7 @@ from formation_bench.optimizers.cma_ops import (
     read_run,
     run_template,
     symmetric_eigen,
+    where_in_core,
 )
 
 D = 10
@@ -168,11 +169,15 @@ def evolved_run(
     return state, costs
 
 
-@pytest.mark.parametrize("active", [True, False])
-def test_one_update_is_the_tutorial_written_out(active: bool) -> None:
+@pytest.mark.parametrize(("active", "stalled"), [(True, False), (False, False), (True, True)])
+def test_one_update_is_the_tutorial_written_out(active: bool, stalled: bool) -> None:
     lam = 10
     params = cma_parameters(D, lam, active)
     state, costs = evolved_run(np.random.default_rng(0), 7, active)
+    if stalled:  # a long p_sigma: h_sigma = 0 stalls the rank-one path
+        state = state.copy()
+        where = where_in_core(D, lam, params.history)
+        state[lam:].reshape(-1)[where.path_sigma : where.path_sigma + D] = 3.0 * params.chi_n
     before = read_run(state, lam)
     assert before.generation == 6 and not np.allclose(before.cov, np.eye(D))
     normals = np.random.default_rng(1).standard_normal((1, lam, D))
