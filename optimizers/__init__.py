@@ -16,12 +16,16 @@ from formation_bench.optimizers.base import (
 )
 from formation_bench.optimizers.chaos import ChaoticMap
 from formation_bench.optimizers.cls_bso import ChaoticLocalSearchBSO
+from formation_bench.optimizers.cma_es import CMAES
+from formation_bench.optimizers.differential_evolution import DifferentialEvolution
 from formation_bench.optimizers.modified_bso import ModifiedBSO
 from formation_bench.optimizers.original_bso import OriginalBSO
 from formation_bench.optimizers.pso import PSO
+from formation_bench.optimizers.random_search import RandomSearch
 from formation_bench.optimizers.registry import OPTIMIZERS, get_optimizer, optimizer_names, register
 
 __all__ = [
+    "CMAES",
     "OPTIMIZERS",
     "PSO",
     "BatchObjective",
@@ -30,12 +34,14 @@ __all__ = [
     "BudgetExhausted",
     "ChaoticLocalSearchBSO",
     "ChaoticMap",
+    "DifferentialEvolution",
     "EvaluationCounter",
     "ModifiedBSO",
     "OptimizeResult",
     "Optimizer",
     "OriginalBSO",
     "PopulationOptimizer",
+    "RandomSearch",
     "get_optimizer",
     "optimizer_names",
     "register",

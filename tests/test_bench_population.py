@@ -36,3 +36,15 @@ def test_population_speed_measures_and_formats() -> None:
     row["mealpy_ratio"] = mealpy["per_evaluation_s"] / row["per_evaluation_s"]
     table = population_speed.format_results({"rows": [row], "mealpy": mealpy})
     assert "| pso | 1230 |" in table and "mealpy-OriginalBSO" in table
+
+
+def test_population_speed_times_de_and_random_search_beside_the_modified_bso() -> None:
+    # the table enumerates the registry: the newer optimisers get rows without an edit
+    assert {"modified-bso", "de", "de-current-to-best", "random-search"} <= set(
+        bbob.population_optimizers()
+    )
+    instants = population_speed.paper_instants((5,))
+    for name in ("de", "random-search"):
+        row = population_speed.time_optimizer(name, instants, 1)
+        assert row["nfev"] == 1230 and 0.0 < row["outside_share"] < 1.0
+        assert f"| {name} | 1230 |" in population_speed.format_results({"rows": [row]})

@@ -203,6 +203,31 @@ REGISTERED = {
         "Shi's BSO + chaotic local search around the best idea (after CBSO, Yu et al. 2018)",
         {},
     ),
+    "cma-es": (
+        "CMAES",
+        "CMA-ES (Hansen's tutorial defaults, active), sigma0 0.2 x range, restarts same lambda",
+        {},
+    ),
+    "cma-es-bipop": (
+        "CMAES",
+        "BIPOP-CMA-ES: large and small population restarts interleaved (Hansen 2009)",
+        {"restarts": "bipop"},
+    ),
+    "cma-es-ipop": (
+        "CMAES",
+        "IPOP-CMA-ES: restarts doubling the population (Auger & Hansen 2005)",
+        {"restarts": "ipop"},
+    ),
+    "de": (
+        "DifferentialEvolution",
+        "Differential evolution DE/rand/1/bin (Storn & Price 1997), N = 30, F = 0.5, CR = 0.9",
+        {},
+    ),
+    "de-current-to-best": (
+        "DifferentialEvolution",
+        "Differential evolution DE/current-to-best/1/bin, N = 30, F = 0.5, CR = 0.9",
+        {"strategy": "current_to_best_1_bin"},
+    ),
     "ipopt": (
         "IpoptOptimizer",
         "IPOPT (CasADi nlpsol) on eq. (14), single shooting, warm primal + dual start; baseline",
@@ -305,9 +330,25 @@ REGISTERED = {
         "Global-best PSO with Clerc-Kennedy constriction (chi = 0.7298, c1 = c2 = 1.49618)",
         {"c1": 1.49618, "c2": 1.49618, "inertia_end": 0.7298, "inertia_start": 0.7298},
     ),
+    "random-search": (
+        "RandomSearch",
+        "Uniform random search, 30 points per batch (the floor every optimiser must beat)",
+        {},
+    ),
 }
 
 CLASS_DEFAULTS = {
+    "CMAES": {
+        "active": True,
+        "bound_handling": "reflect",
+        "lamarckian": False,
+        "max_evaluations": 1230,
+        "population_size": None,
+        "restarts": "same",
+        "sigma0": 0.2,
+        "tol_fun": 1e-12,
+        "tol_x": 1e-12,
+    },
     "ChaoticLocalSearchBSO": {
         "bound_handling": "clip",
         "kmeans_max_iter": 100,
@@ -325,6 +366,14 @@ CLASS_DEFAULTS = {
         "slope": 20.0,
         "step_relative_to_range": False,
         "step_scale": 1.0,
+    },
+    "DifferentialEvolution": {
+        "bound_handling": "resample",
+        "crossover_rate": 0.9,
+        "differential_weight": 0.5,
+        "max_iterations": 40,
+        "population_size": 30,
+        "strategy": "rand_1_bin",
     },
     "IpoptOptimizer": {
         "acceptable_tol": 0.0001,
@@ -395,6 +444,10 @@ CLASS_DEFAULTS = {
         "max_iterations": 40,
         "population_size": 30,
         "velocity_clamp": 0.2,
+    },
+    "RandomSearch": {
+        "max_iterations": 40,
+        "population_size": 30,
     },
 }
 

@@ -1,0 +1,420 @@
+"""CMA-ES: parameters, update and sampling by hand, the eigensolver, repair, restarts."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from formation_bench.optimizers import CMAES, Bounds, Budget, EvaluationCounter, get_optimizer
+from formation_bench.optimizers.bound_handling import BoundHandling
+from formation_bench.optimizers.cma_es import MAX_DOUBLINGS, Restarts
+from formation_bench.optimizers.cma_ops import (
+    cma_generation,
+    cma_parameters,
+    default_population_size,
+    injection_cap,
+    new_run,
+    read_run,
+    run_template,
+    symmetric_eigen,
+    where_in_core,
+)
+
+D = 10
+BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
+CENTRE = np.linspace(-3.0, 2.0, D)
+
+
+def sphere(x: np.ndarray) -> np.ndarray:
+    z = x - CENTRE
+    return np.einsum("ij,ij->i", z, z)
+
+
+class Recorder:
+    """Batch objective that keeps the size of every batch it is asked to evaluate."""
+
+    def __init__(self, f=sphere) -> None:
+        self.f = f
+        self.sizes: list[int] = []
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        self.sizes.append(x.shape[0])
+        return self.f(x)
+
+
+# --- parameters ---------------------------------------------------------------------------------
+
+
+def test_default_population_size_is_4_plus_floor_3_ln_n() -> None:
+    assert [default_population_size(n) for n in (1, 2, 3, 10, 20, 100)] == [4, 6, 7, 10, 12, 17]
+
+
+@pytest.mark.parametrize(("n", "lam"), [(10, 10), (2, 6), (30, 14), (10, 41)])
+def test_parameters_agree_with_pycma(n: int, lam: int) -> None:
+    import cma  # the dev extra has it: a missing reference fails, not skips
+    es = cma.CMAEvolutionStrategy(n * [0.0], 1.0, {"popsize": lam, "verbose": -9})
+    ours = cma_parameters(n, lam)
+    np.testing.assert_allclose(ours.weights, np.asarray(es.sp.weights), rtol=1e-12)
+    assert ours.mu == es.sp.weights.mu
+    assert ours.mueff == pytest.approx(es.sp.weights.mueff, rel=1e-12)
+    assert ours.c_1 == pytest.approx(es.sp.c1, rel=1e-12)
+    assert ours.c_mu == pytest.approx(es.sp.cmu, rel=1e-12)
+    assert ours.c_c == pytest.approx(es.sp.cc, rel=1e-12)
+    # pycma's CSA learning rate differs from the tutorial's Table 1 (n + mueff + 3, capped),
+    # so the step-size parameters are checked against the table itself
+    mueff = ours.mueff
+    assert ours.c_sigma == pytest.approx((mueff + 2) / (n + mueff + 5), rel=1e-12)
+    assert ours.d_sigma == pytest.approx(
+        1 + 2 * max(0.0, math.sqrt((mueff - 1) / (n + 1)) - 1) + ours.c_sigma, rel=1e-12
+    )
+
+
+def test_passive_weights_are_zero_after_mu_and_the_positive_ones_sum_to_one() -> None:
+    active, passive = cma_parameters(10, 10, True), cma_parameters(10, 10, False)
+    assert active.weights[:5].sum() == pytest.approx(1.0)
+    assert np.all(active.weights[5:] < 0.0)
+    np.testing.assert_array_equal(passive.weights[:5], active.weights[:5])
+    assert np.all(passive.weights[5:] == 0.0)
+    # the negative weights sum to -min(1 + c1/cmu, ...), here the first term
+    assert active.weights[5:].sum() == pytest.approx(-(1.0 + active.c_1 / active.c_mu))
+    assert active.history == 10 + 30 and injection_cap(10) == pytest.approx(math.sqrt(10) + 20 / 12)
+
+
+# --- the eigensolver ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 10, 17, 30])
+def test_symmetric_eigen_decomposes_random_symmetric_matrices(n: int) -> None:
+    rng = np.random.default_rng(n)
+    for _ in range(5):
+        a = rng.standard_normal((n, n))
+        a = (a + a.T) / 2.0
+        values, rows = symmetric_eigen(a)
+        np.testing.assert_allclose(rows @ rows.T, np.eye(n), atol=1e-13)
+        np.testing.assert_allclose(rows.T @ np.diag(values) @ rows, a, atol=1e-12)
+        np.testing.assert_allclose(np.sort(values), np.linalg.eigvalsh(a), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "a",
+    [
+        np.eye(4),
+        np.zeros((3, 3)),
+        np.diag([1e-20, 1.0, 1e-3]),
+        np.ones((4, 4)),
+        np.array([[2.0, 1.0], [1.0, 2.0]]),
+        np.diag([1.0, 1.0, 2.0, 2.0]) + 1e-9 * np.ones((4, 4)),
+    ],
+    ids=["identity", "zero", "wide-range", "rank-one", "2x2", "near-repeated"],
+)
+def test_symmetric_eigen_on_degenerate_matrices(a: np.ndarray) -> None:
+    values, rows = symmetric_eigen(a)
+    n = a.shape[0]
+    np.testing.assert_allclose(rows @ rows.T, np.eye(n), atol=1e-13)
+    np.testing.assert_allclose(rows.T @ np.diag(values) @ rows, a, atol=1e-13)
+    np.testing.assert_allclose(np.sort(values), np.linalg.eigvalsh(a), atol=1e-13)
+
+
+# --- one generation by hand ---------------------------------------------------------------------
+
+
+def reference_update(view, costs: np.ndarray, weights: np.ndarray, params, n: int):
+    """The tutorial's Fig. 6 written out with numpy, from a run's named arrays."""
+    order = np.argsort(costs, kind="stable")
+    y = view.steps[order]
+    mu = params.mu
+    y_w = weights[:mu] @ y[:mu]
+    mean = view.mean + view.sigma * y_w
+    ps = (1 - params.c_sigma) * view.path_sigma + math.sqrt(
+        params.c_sigma * (2 - params.c_sigma) * params.mueff
+    ) * (view.inv_sqrt @ y_w)
+    g = view.generation
+    h = (
+        np.linalg.norm(ps) / math.sqrt(1 - (1 - params.c_sigma) ** (2 * (g + 1)))
+        < (1.4 + 2 / (n + 1)) * params.chi_n
+    )
+    pc = (1 - params.c_c) * view.path_c + h * math.sqrt(
+        params.c_c * (2 - params.c_c) * params.mueff
+    ) * y_w
+    w_circ = weights.copy()
+    for k in range(len(weights)):
+        if weights[k] < 0:
+            w_circ[k] *= n / np.linalg.norm(view.inv_sqrt @ y[k]) ** 2
+    delta = (1 - h) * params.c_c * (2 - params.c_c)
+    cov = (
+        (1 + params.c_1 * delta - params.c_1 - params.c_mu * weights.sum()) * view.cov
+        + params.c_1 * np.outer(pc, pc)
+        + params.c_mu * (y.T * w_circ) @ y
+    )
+    sigma = view.sigma * math.exp(
+        params.c_sigma / params.d_sigma * (np.linalg.norm(ps) / params.chi_n - 1)
+    )
+    return mean, ps, pc, cov, sigma
+
+
+def evolved_run(
+    rng: np.random.Generator, generations: int, active: bool = True, lamarckian: bool = False
+):
+    """A run after some generations on the sphere, so that C, paths and sigma are not trivial."""
+    lam = 10
+    template = run_template(D, lam, active, 1e-12, 1e-12, int(BoundHandling.CLIP), lamarckian)
+    state = new_run(template, lam, np.full(D, 0.5), 0.2, BOX.lower, BOX.upper)
+    costs = np.empty(0)
+    for _ in range(generations):
+        normals = rng.standard_normal((1, lam, D))
+        state = cma_generation(state, costs, normals, normals, 0)
+        costs = sphere(state[:lam])
+    return state, costs
+
+
+@pytest.mark.parametrize(("active", "stalled"), [(True, False), (False, False), (True, True)])
+def test_one_update_is_the_tutorial_written_out(active: bool, stalled: bool) -> None:
+    lam = 10
+    params = cma_parameters(D, lam, active)
+    state, costs = evolved_run(np.random.default_rng(0), 7, active)
+    if stalled:  # a long p_sigma: h_sigma = 0 stalls the rank-one path
+        state = state.copy()
+        where = where_in_core(D, lam, params.history)
+        state[lam:].reshape(-1)[where.path_sigma : where.path_sigma + D] = 3.0 * params.chi_n
+    before = read_run(state, lam)
+    assert before.generation == 6 and not np.allclose(before.cov, np.eye(D))
+    normals = np.random.default_rng(1).standard_normal((1, lam, D))
+    after = read_run(cma_generation(state, costs, normals, normals, 0), lam)
+    mean, ps, pc, cov, sigma = reference_update(before, costs, params.weights, params, D)
+    np.testing.assert_allclose(after.mean, mean, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(after.path_sigma, ps, rtol=1e-10, atol=1e-13)
+    np.testing.assert_allclose(after.path_c, pc, rtol=1e-10, atol=1e-13)
+    np.testing.assert_allclose(after.cov, cov, rtol=1e-10, atol=1e-15)
+    assert after.sigma == pytest.approx(sigma, rel=1e-12)
+    assert after.generation == before.generation + 1
+    assert after.history[0] == costs.min() and after.history[1] == before.history[0]
+
+
+def test_samples_are_the_mean_plus_sigma_b_d_z_mapped_to_the_box() -> None:
+    lam = 10
+    state, costs = evolved_run(np.random.default_rng(2), 5)
+    normals = np.random.default_rng(3).standard_normal((1, lam, D)) * 0.01  # stay inside
+    out = cma_generation(state, costs, normals, normals, 0)
+    view = read_run(out, lam)
+    steps = (view.eigenvectors.T @ (view.axes[:, None] * normals[0].T)).T
+    np.testing.assert_allclose(view.steps, steps, rtol=1e-12, atol=1e-15)
+    u = view.mean + view.sigma * steps
+    np.testing.assert_allclose(view.points, BOX.lower + BOX.width * u, rtol=1e-12)
+
+
+def test_the_eigensystem_is_refreshed_lazily_and_then_matches_c() -> None:
+    lam = 10
+    params = cma_parameters(D, lam)
+    assert 10 < params.eigen_gap < 20  # purecma's gap: every second generation at n = 10
+    state, costs = evolved_run(np.random.default_rng(4), 1)  # sampled once, nothing learned yet
+    refreshed = []
+    for g in range(6):
+        normals = np.random.default_rng(g).standard_normal((1, lam, D))
+        state = cma_generation(state, costs, normals, normals, 0)
+        costs = sphere(state[:lam])
+        view = read_run(state, lam)
+        reconstructed = view.eigenvectors.T @ np.diag(view.axes**2) @ view.eigenvectors
+        refreshed.append(np.allclose(reconstructed, view.cov, rtol=1e-10, atol=1e-14))
+        inverse = view.inv_sqrt @ view.inv_sqrt
+        np.testing.assert_allclose(inverse @ reconstructed, np.eye(D), atol=1e-8)
+    assert refreshed == [False, True, False, True, False, True]
+
+
+@pytest.mark.parametrize("lamarckian", [False, True])
+def test_a_sample_outside_is_evaluated_repaired_and_learned_from_by_the_policy(
+    lamarckian: bool,
+) -> None:
+    lam = 10
+    state, costs = evolved_run(np.random.default_rng(5), 3, lamarckian=lamarckian)
+    normals = np.zeros((1, lam, D))
+    normals[0, 0, :] = 60.0  # far outside along most coordinates
+    view = read_run(cma_generation(state, costs, normals, normals, 0), lam)
+    assert BOX.contains(view.points)
+    sampled = view.eigenvectors.T @ (view.axes * normals[0, 0])
+    u = view.mean + view.sigma * sampled
+    outside = (u < 0) | (u > 1)
+    assert outside.sum() >= 5
+    repaired = np.clip(u, 0.0, 1.0)  # the evolved run clips
+    np.testing.assert_allclose(view.points[0], BOX.lower + BOX.width * repaired, rtol=1e-12)
+    if lamarckian:  # the repaired point's step, shortened to the cap
+        assert np.linalg.norm(view.inv_sqrt @ view.steps[0]) == pytest.approx(injection_cap(D))
+        direction = repaired - view.mean
+        np.testing.assert_allclose(
+            view.steps[0] / np.linalg.norm(view.steps[0]),
+            direction / np.linalg.norm(direction),
+            rtol=1e-10,
+        )
+    else:  # the sampled step: the search minimises f(repair(x))
+        np.testing.assert_allclose(view.steps[0], sampled, rtol=1e-12)
+    # a sample inside keeps its sampled step either way
+    np.testing.assert_allclose(view.points[1], BOX.lower + BOX.width * view.mean)
+    np.testing.assert_array_equal(view.steps[1], np.zeros(D))
+
+
+# --- behaviour ----------------------------------------------------------------------------------
+
+
+def test_the_mean_starts_at_the_warm_start() -> None:
+    rec = Recorder()
+    x0 = np.full(D, 4.0)
+    opt = CMAES(sigma0=1e-6)
+    res = opt.minimize(rec, BOX, np.random.default_rng(0), Budget(max_evaluations=21), x0)
+    assert rec.sizes == [1, 10, 10]
+    assert res.nfev == 21 and np.max(np.abs(res.x - x0)) < 1e-4
+
+
+def test_a_generation_cut_short_by_the_budget_evaluates_its_first_samples() -> None:
+    rec = Recorder()
+    res = CMAES().minimize(rec, BOX, np.random.default_rng(0), Budget(max_evaluations=36))
+    assert rec.sizes == [1, 10, 10, 10, 5] and res.nfev == 36 and res.nit == 4
+
+
+@pytest.mark.parametrize("name", ["cma-es", "cma-es-ipop", "cma-es-bipop"])
+def test_converges_on_sphere_ellipsoid_and_rosenbrock_with_enough_budget(name: str) -> None:
+    def ellipsoid(x):
+        return ((x - CENTRE) ** 2 * 10.0 ** (6 * np.arange(D) / (D - 1))).sum(axis=1)
+
+    def rosenbrock(x):
+        return (100 * (x[:, 1:] - x[:, :-1] ** 2) ** 2 + (1 - x[:, :-1]) ** 2).sum(axis=1)
+
+    opt = get_optimizer(name)
+    for f, budget in ((sphere, 2000), (ellipsoid, 6000), (rosenbrock, 8000)):
+        results = [
+            opt.minimize(f, BOX, np.random.default_rng(s), Budget(max_evaluations=budget)).fun
+            for s in range(3)
+        ]
+        assert np.median(results) < 1e-8, (f.__name__, results)
+
+
+def test_a_flat_objective_stops_runs_on_tolfun_and_restarts() -> None:
+    rec = Recorder(lambda x: np.ones(x.shape[0]))
+    res = CMAES().minimize(rec, BOX, np.random.default_rng(0), Budget(max_evaluations=2000))
+    history = cma_parameters(D, 10).history
+    assert res.info["stops"] and set(res.info["stops"]) == {"tolfun"}
+    # a run learns from `history` generations before TolFun can apply
+    assert res.info["restarts"] <= 2000 // (10 * history)
+    assert set(rec.sizes[1:-1]) == {10} and rec.sizes[-1] == 9  # the budget cuts the last
+
+
+def solve_with_restarts(restarts: Restarts, budget: int, seed: int = 0) -> tuple[list, list]:
+    """``(batch sizes after the first point, runs)`` of a solve on the sphere."""
+    rec = Recorder()
+    # a loose TolFun makes runs on the sphere stop after some dozens of generations
+    opt = CMAES(restarts=restarts, tol_fun=1e-2)
+    res = opt.minimize(rec, BOX, np.random.default_rng(seed), Budget(max_evaluations=budget))
+    assert res.nfev == sum(rec.sizes) <= budget
+    runs = res.info["runs"]
+    assert len(runs) == res.info["restarts"] + 1
+    assert [r["stop"] for r in runs[:-1]] == res.info["stops"] and runs[-1]["stop"] is None
+    # every run learns from all of its generations but the solve's last one
+    learned = sum(r["evaluations"] for r in runs)
+    assert learned == res.nfev - 1 - rec.sizes[-1]
+    return rec.sizes[1:], runs
+
+
+def test_same_restarts_keep_lambda() -> None:
+    sizes, runs = solve_with_restarts(Restarts.SAME, 3000)
+    assert len(runs) >= 3 and {r["population_size"] for r in runs} == {10}
+    assert set(sizes[:-1]) == {10}
+
+
+def test_ipop_doubles_lambda_at_every_restart() -> None:
+    sizes, runs = solve_with_restarts(Restarts.IPOP, 6000)
+    assert len(runs) >= 3
+    assert [r["population_size"] for r in runs] == [10 * 2**k for k in range(len(runs))]
+    assert sizes[: runs[0]["evaluations"] // 10] == [10] * (runs[0]["evaluations"] // 10)
+
+
+def test_ipop_stops_doubling_at_the_cap() -> None:
+    opt = CMAES(restarts=Restarts.IPOP)
+    state = opt.init(EvaluationCounter(sphere, D, None), BOX, np.random.default_rng(0), None, 10)
+    for _ in range(MAX_DOUBLINGS + 3):
+        state = opt.restart(state, state.run, BOX, np.random.default_rng(1), "tolfun")
+    assert state.plan.population_size == 10 * 2**MAX_DOUBLINGS
+
+
+def test_bipop_interleaves_large_and_small_runs_within_their_budgets() -> None:
+    _, runs = solve_with_restarts(Restarts.BIPOP, 12000, seed=3)
+    assert len(runs) >= 5
+    # the first run has the default lambda and counts as small; a large run follows
+    assert runs[0]["population_size"] == 10
+    small_total, large_total, doublings = runs[0]["evaluations"], 0, 0
+    kinds = []
+    for run in runs[1:]:
+        lam, evaluations = run["population_size"], run["evaluations"]
+        if small_total >= max(1, large_total):
+            doublings += 1
+            assert lam == 10 * 2**doublings
+            large_total += evaluations
+            kinds.append("large")
+        else:  # lambda between the default and the latest large one, half the large budget
+            assert 10 <= lam <= 10 * 2**doublings
+            assert evaluations < 0.5 * large_total + lam
+            if run["stop"] == "runbudget":
+                assert evaluations >= 0.5 * large_total
+            small_total += evaluations
+            kinds.append("small")
+    assert kinds[0] == "large" and kinds.count("small") >= 2
+
+
+def test_sigma0_is_a_fraction_of_each_coordinates_range() -> None:
+    box = Bounds(np.array([-7.0, -0.25]), np.array([7.0, 0.25]))
+    rec_points: list[np.ndarray] = []
+
+    def record(x):
+        rec_points.append(x.copy())
+        return np.zeros(x.shape[0])
+
+    CMAES(sigma0=0.01, population_size=400).minimize(
+        record, box, np.random.default_rng(0), Budget(max_evaluations=401), np.zeros(2)
+    )
+    spread = rec_points[1].std(axis=0)
+    np.testing.assert_allclose(spread, 0.01 * box.width, rtol=0.1)
+
+
+@pytest.mark.parametrize("lamarckian", [False, True])
+@pytest.mark.parametrize("mode", list(BoundHandling))
+def test_every_bound_policy_keeps_points_inside(mode: BoundHandling, lamarckian: bool) -> None:
+    box = Bounds(np.full(D, -1.0), np.full(D, 1.0))
+    points = []
+
+    def record(x):  # the optimum (3, ..., 3) is outside: the box's corner is best, cost 40
+        points.append(x.copy())
+        return ((x - 3.0) ** 2).sum(axis=1)
+
+    opt = CMAES(bound_handling=mode, lamarckian=lamarckian)
+    res = opt.minimize(record, box, np.random.default_rng(0), Budget(max_evaluations=1230))
+    assert box.contains(np.vstack(points)) and box.contains(res.x)
+    if mode is BoundHandling.REFLECT and not lamarckian:  # the default reaches the corner
+        assert res.fun == pytest.approx(40.0, abs=0.05)
+    if mode is BoundHandling.CLIP and not lamarckian:  # exactly: the corner is a clipped point
+        assert res.fun == 40.0
+
+
+def test_registered_variants() -> None:
+    assert get_optimizer("cma-es") == CMAES()
+    assert get_optimizer("cma-es-ipop").restarts is Restarts.IPOP
+    assert get_optimizer("cma-es-bipop").restarts is Restarts.BIPOP
+    assert CMAES().default_budget == Budget(max_evaluations=1230)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("population_size", 1),
+        ("sigma0", 0.0),
+        ("sigma0", 1.5),
+        ("max_evaluations", 0),
+        ("active", "yes"),
+        ("restarts", "lpop"),
+        ("bound_handling", "bounce"),
+        ("tol_fun", -1.0),
+        ("tol_x", math.nan),
+    ],
+)
+def test_invalid_config_names_the_field(field: str, value: object) -> None:
+    with pytest.raises(ValueError, match=rf"CMAES\.{field} must"):
+        CMAES(**{field: value})
+
