@@ -287,6 +287,9 @@ def deadline_figure(
                 table.index, table[0.25], table[0.75], color=line.get_color(), alpha=0.15
             )
         ax.set_xscale("log")
+        deadlines = sorted(data["budget_deadline_ms"].unique())
+        ax.set_xticks(deadlines, [f"{d:g}" for d in deadlines])
+        ax.minorticks_off()
         ax.set_xlabel("per-solve deadline (ms)")
         ax.set_ylabel(label(metric))
     axes[0][0].legend(fontsize=8)
