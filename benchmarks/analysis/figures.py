@@ -300,38 +300,37 @@ def deadline_figure(
 def score_ecdf_figure(curves: pd.DataFrame) -> plt.Figure:
     """Share of (trial, target) pairs reached against evaluations, one panel per budget, as
     COCO and IOHprofiler draw runtime distributions."""
-    sns.set_theme(style="whitegrid")
-    budgets = list(dict.fromkeys(curves["budget"]))
-    fig, axes = plt.subplots(
-        1, len(budgets), figsize=(6 * len(budgets), 4.6), squeeze=False, constrained_layout=True
+    fig = _step_panels_per_budget(
+        curves, "evaluations", "evaluations", "share of (trial, target gap) pairs reached"
     )
-    for ax, budget in zip(axes[0], budgets, strict=True):
-        for optimizer, curve in curves[curves["budget"] == budget].groupby("optimizer"):
-            ax.step(curve["evaluations"], curve["share"], where="post", label=str(optimizer))
-        ax.set_xscale("log")
-        ax.set_ylim(0, 1)
-        ax.set_xlabel("evaluations")
-        ax.set_ylabel("share of (trial, target gap) pairs reached")
-        ax.set_title(f"budget {budget}", fontsize=10)
-    axes[0][-1].legend(fontsize=7, loc="lower right")
     fig.suptitle("targets 1e-1 .. 1e-6 relative gap to J*", fontsize=10)
     return fig
 
 
 def score_profile_figure(profile: pd.DataFrame) -> plt.Figure:
     """Dolan-More performance profiles of solve time, one panel per budget."""
+    return _step_panels_per_budget(
+        profile,
+        "tau",
+        "tau (solve time / best solver's on the instance)",
+        "share of instances solved to 1e-3 within tau",
+    )
+
+
+def _step_panels_per_budget(frame: pd.DataFrame, x: str, xlabel: str, ylabel: str) -> plt.Figure:
+    """One panel per budget, one step curve of ``share`` against ``x`` per optimiser."""
     sns.set_theme(style="whitegrid")
-    budgets = list(dict.fromkeys(profile["budget"]))
+    budgets = list(dict.fromkeys(frame["budget"]))
     fig, axes = plt.subplots(
         1, len(budgets), figsize=(6 * len(budgets), 4.6), squeeze=False, constrained_layout=True
     )
     for ax, budget in zip(axes[0], budgets, strict=True):
-        for optimizer, curve in profile[profile["budget"] == budget].groupby("optimizer"):
-            ax.step(curve["tau"], curve["share"], where="post", label=str(optimizer))
+        for optimizer, curve in frame[frame["budget"] == budget].groupby("optimizer"):
+            ax.step(curve[x], curve["share"], where="post", label=str(optimizer))
         ax.set_xscale("log")
         ax.set_ylim(0, 1)
-        ax.set_xlabel("tau (solve time / best solver's on the instance)")
-        ax.set_ylabel("share of instances solved to 1e-3 within tau")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
         ax.set_title(f"budget {budget}", fontsize=10)
     axes[0][-1].legend(fontsize=7, loc="lower right")
     return fig
