@@ -58,9 +58,9 @@ def test_notebook_executes_on_stored_results(results_dir, tmp_path, monkeypatch)
     outputs = [out for cell in notebook.cells for out in cell.get("outputs", [])]
     assert not [out for out in outputs if out.output_type == "error"]
     images = [out for out in outputs if "image/png" in out.get("data", {})]
-    # Figs. 3-7 (5), three comparison distributions, ECDF, solves, ablation distribution,
-    # convergence, trigger trade-off
-    assert len(images) == 13
+    # Figs. 3-7 (5), four comparison distributions (steady state, two errors, transient),
+    # ECDF, solves, ablation distribution, convergence, trigger trade-off
+    assert len(images) == 14
     assert all(len(base64.b64decode(out["data"]["image/png"])) > 5_000 for out in images)
     sentences = [
         out["data"]["text/markdown"] for out in outputs if "text/markdown" in out.get("data", {})
