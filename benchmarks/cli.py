@@ -140,6 +140,23 @@ def _build(args: argparse.Namespace) -> tuple[Scenario, Optimizer]:
         raise UsageError(_set_error(_message(err), args.set or [])) from None
 
 
+def configured_optimizer(name: str, assignments: list[str]) -> tuple[Optimizer, dict[str, Any]]:
+    """The registered optimizer ``name`` with ``--set FIELD=VALUE`` overrides of its own
+    fields (for commands without a scenario); returns it and the overrides."""
+    if name not in OPTIMIZERS:
+        allowed = ", ".join(sorted(OPTIMIZERS))
+        raise UsageError(f"--optimizer: unknown name {name!r}; allowed: {allowed}")
+    to_scenario, to_optimizer = split_overrides(
+        assignments, get_scenario("paper"), get_optimizer(name)
+    )
+    if to_scenario:
+        raise UsageError(f"--set {next(iter(to_scenario))}: only optimizer fields apply here")
+    try:
+        return get_optimizer(name, **to_optimizer), to_optimizer
+    except (ValueError, TypeError, KeyError) as err:
+        raise UsageError(_set_error(_message(err), assignments)) from None
+
+
 def _message(err: BaseException) -> str:
     return str(err.args[0]) if err.args else str(err)
 
@@ -360,6 +377,27 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_output_options(command: argparse.ArgumentParser) -> None:
+    """``--figures``, ``--overwrite`` and ``--progress``, as ``run`` and ``reproduce`` take them."""
+    command.add_argument(
+        "--figures",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="draw the figures (default); --no-figures writes metrics and trace only",
+    )
+    command.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a non-empty output folder (as a whole) instead of refusing",
+    )
+    command.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: only on a terminal)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="formation-bench",
@@ -397,23 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="run seed(s), integers >= 0 (default 0); several seeds write DIR/seedN/ each "
         "and a table of every figure over the seeds",
     )
-    reproduce.add_argument(
-        "--figures",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="draw the figures (default); --no-figures writes metrics and trace only",
-    )
-    reproduce.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace a non-empty output folder (as a whole) instead of refusing",
-    )
-    reproduce.add_argument(
-        "--progress",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="progress bar on stderr (default: only on a terminal)",
-    )
+    add_output_options(reproduce)
     reproduce.set_defaults(func=cmd_reproduce)
 
     run = sub.add_parser("run", help="one closed-loop run")
@@ -455,23 +477,7 @@ def build_parser() -> argparse.ArgumentParser:
         "so far when it passes (results then depend on the machine's speed)",
     )
     run.add_argument("--out", required=True, help="output folder")
-    run.add_argument(
-        "--figures",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="draw the figures (default); --no-figures writes metrics and trace only",
-    )
-    run.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace a non-empty output folder (as a whole) instead of refusing",
-    )
-    run.add_argument(
-        "--progress",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="progress bar on stderr (default: only on a terminal)",
-    )
+    add_output_options(run)
     run.set_defaults(func=cmd_run)
 
     listing = sub.add_parser("list", help="registered optimizers and scenarios")

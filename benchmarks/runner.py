@@ -76,7 +76,7 @@ def execute(spec: RunSpec, *, progress: ProgressCallback | None = None) -> RunOu
         trigger=spec.trigger,
         seed=spec.entropy,
         optimizer_name=spec.optimizer_label,
-        budget=spec.budget,
+        budget=spec.budget_for(optimizer),
         progress=progress,
     )
     metrics = compute_metrics(trace)

@@ -177,16 +177,19 @@ class RunSpec:
             plugins=plugins,
         )
 
+    def budget_for(self, optimizer: Optimizer) -> Budget | None:
+        """The per-solve budget of this run's ``optimizer``; None: the optimiser's own."""
+        return resolved_budget(
+            self.budget_max_evaluations,
+            self.budget_max_iterations,
+            self.budget_deadline_ms,
+            optimizer,
+        )
+
     @property
     def budget(self) -> Budget | None:
         """The per-solve budget; None: the optimiser's own."""
-        if self.budget_max_evaluations is None and self.budget_max_iterations is None:
-            if self.budget_deadline_ms is None:
-                return None
-            _, optimizer = self.build()
-            return with_deadline(None, self.budget_deadline_ms, optimizer)
-        limits = Budget(self.budget_max_evaluations, self.budget_max_iterations)
-        return with_deadline(limits, self.budget_deadline_ms, None)
+        return self.budget_for(self.build()[1])
 
     @property
     def budget_label(self) -> str:
@@ -302,6 +305,21 @@ def with_deadline(
         assert optimizer is not None, "a deadline alone caps the optimiser's own budget"
         budget = optimizer.default_budget
     return dataclasses.replace(budget, deadline_s=deadline_ms / 1000.0)
+
+
+def resolved_budget(
+    max_evaluations: int | None,
+    max_iterations: int | None,
+    deadline_ms: float | None,
+    optimizer: Optimizer,
+) -> Budget | None:
+    """The per-solve budget of these limits for ``optimizer`` (None: its own)."""
+    limits = (
+        None
+        if max_evaluations is None and max_iterations is None
+        else Budget(max_evaluations, max_iterations)
+    )
+    return with_deadline(limits, deadline_ms, optimizer)
 
 
 def budget_label(

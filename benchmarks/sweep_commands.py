@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from formation_bench.benchmarks.checks import LimitError, check_scheduler_address
+from formation_bench.benchmarks.cli import _deadline, _seed, configured_optimizer
 from formation_bench.benchmarks.experiments.store import StoreError
 from formation_bench.benchmarks.experiments.suite import (
     SuiteError,
@@ -41,18 +42,6 @@ def _jobs(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {value}")
     return value
-
-
-def _seed_value(text: str) -> int:
-    from formation_bench.benchmarks.cli import _seed
-
-    return _seed(text)
-
-
-def _deadline_value(text: str) -> float:
-    from formation_bench.benchmarks.cli import _deadline
-
-    return _deadline(text)
 
 
 def _scheduler(text: str) -> str:
@@ -123,7 +112,6 @@ def _score_budget(text: str) -> tuple[int | None, int | None]:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
-    from formation_bench.benchmarks.cli import UsageError, parse_value
     from formation_bench.benchmarks.experiments.score import run_scores, score_runs
     from formation_bench.plugins import loaded_plugins
 
@@ -132,28 +120,15 @@ def cmd_score(args: argparse.Namespace) -> int:
         check_output_folder(out, overwrite=True)  # score runs resume, like a sweep
     except OutputError as err:
         raise SweepError(str(err)) from None
-    overrides = {}
-    for assignment in args.set or []:
-        name, sep, raw = assignment.partition("=")
-        if not sep or not name:
-            raise UsageError(f"--set expects FIELD=VALUE, got {assignment!r}")
-        overrides[name.removeprefix("optimizer.")] = parse_value(raw)
-    from formation_bench.optimizers import OPTIMIZERS
-
-    if args.optimizer not in OPTIMIZERS:
-        allowed = ", ".join(sorted(OPTIMIZERS))
-        raise UsageError(f"--optimizer: unknown name {args.optimizer!r}; allowed: {allowed}")
-    try:
-        runs = score_runs(
-            args.optimizer,
-            overrides,
-            list(dict.fromkeys(args.budgets)),
-            list(dict.fromkeys(args.seeds)),
-            deadline_ms=args.deadline_ms,
-            plugins=loaded_plugins(),
-        )
-    except (ValueError, TypeError) as err:
-        raise UsageError(f"--set: {err}") from None
+    _, overrides = configured_optimizer(args.optimizer, args.set or [])
+    runs = score_runs(
+        args.optimizer,
+        overrides,
+        list(dict.fromkeys(args.budgets)),
+        list(dict.fromkeys(args.seeds)),
+        deadline_ms=args.deadline_ms,
+        plugins=loaded_plugins(),
+    )
     start = time.perf_counter()
     done = 0
     for run in run_scores(runs, out, jobs=args.jobs):
@@ -270,11 +245,9 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         metavar="B",
         help="per-solve budgets: 'default' (the optimizer's own) or evaluations (default: default)",
     )
+    score.add_argument("--seeds", nargs="+", type=_seed, default=[0], help="seeds (default 0)")
     score.add_argument(
-        "--seeds", nargs="+", type=_seed_value, default=[0], help="seeds (default 0)"
-    )
-    score.add_argument(
-        "--deadline-ms", type=_deadline_value, metavar="MS", help="per-solve wall-clock deadline"
+        "--deadline-ms", type=_deadline, metavar="MS", help="per-solve wall-clock deadline"
     )
     score.add_argument("--out", required=True, help="results folder (resumed if it exists)")
     score.add_argument(

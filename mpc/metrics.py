@@ -71,15 +71,17 @@ def closed_loop_cost(trace: Trace, instants: slice | np.ndarray = slice(None)) -
     return float(scenario.period_s * np.sum(rate[instants]))
 
 
-def settling_time(trace: Trace) -> float:
+def settling_time(trace: Trace, tracking: np.ndarray, errors: dict[str, np.ndarray]) -> float:
     """The first instant from which every pair's distance error stays within
     ``settling_distance_band`` of its desired distance and the tracking error within
-    ``settling_tracking_band_m`` to the end of the run; NaN if the last instant is outside."""
+    ``settling_tracking_band_m`` to the end of the run; NaN if the last instant is outside.
+    ``tracking`` and ``errors`` are :func:`tracking_error` and :func:`distance_errors` of the
+    trace, at every instant."""
     scenario = trace.scenario
     desired = scenario.desired_distances()
-    inside = tracking_error(trace) <= scenario.settling_tracking_band_m
+    inside = tracking <= scenario.settling_tracking_band_m
     for name, i, j in pair_names(scenario.n_uav):
-        inside &= distance_errors(trace)[name] <= scenario.settling_distance_band * desired[i, j]
+        inside &= errors[name] <= scenario.settling_distance_band * desired[i, j]
     outside = np.flatnonzero(~inside)
     if outside.size == 0:
         return float(trace.times[0])
@@ -256,9 +258,10 @@ def compute_metrics(trace: Trace) -> Metrics:
             f"settle_time_s={scenario.settle_time_s} is after the end of the run "
             f"({trace.times[-1]:.2f} s)"
         )
-    tracking = tracking_error(trace)[settled]
+    tracking_all, errors = tracking_error(trace), distance_errors(trace)
+    tracking = tracking_all[settled]
     solve_times = trace.solve_time_s[trace.solved]
-    distances = {name: float(err[settled].max()) for name, err in distance_errors(trace).items()}
+    distances = {name: float(err[settled].max()) for name, err in errors.items()}
     solves = tuple(int(n) for n in trace.solved.sum(axis=0))
     by_condition = trace.reasons[trace.solved].sum(axis=0)
     steady = trace.times[1:] >= scenario.settle_time_s - 1e-9
@@ -273,7 +276,7 @@ def compute_metrics(trace: Trace) -> Metrics:
         closed_loop_cost=closed_loop_cost(trace),
         transient_cost=closed_loop_cost(trace, ~steady),
         steady_state_cost=closed_loop_cost(trace, steady),
-        settling_time_s=settling_time(trace),
+        settling_time_s=settling_time(trace, tracking_all, errors),
         min_separation_m=min_separation(trace),
         control_effort=tuple(float(e) for e in control_effort(trace)),
         solves_at_bound_share=float(trace.plan_at_bound[trace.solved].mean()),

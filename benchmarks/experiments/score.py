@@ -29,10 +29,11 @@ from formation_bench.benchmarks.analysis.scoring import TARGETS, evaluations_to_
 from formation_bench.benchmarks.instances.library import Library, shipped
 from formation_bench.benchmarks.outputs import atomic_write_bytes
 from formation_bench.benchmarks.spec import (
+    budget_label,
     canonical_json,
     from_json_value,
     labelled,
-    with_deadline,
+    resolved_budget,
 )
 from formation_bench.optimizers import Budget, Optimizer, get_optimizer
 from formation_bench.plugins import load_plugins
@@ -64,8 +65,6 @@ class ScoreRun:
 
     @property
     def budget_label(self) -> str:
-        from formation_bench.benchmarks.spec import budget_label
-
         return budget_label(self.max_evaluations, self.max_iterations, self.deadline_ms)
 
     def identity(self) -> dict[str, Any]:
@@ -96,12 +95,9 @@ class ScoreRun:
         )
 
     def budget(self, optimizer: Optimizer) -> Budget | None:
-        limits = (
-            None
-            if self.max_evaluations is None and self.max_iterations is None
-            else Budget(self.max_evaluations, self.max_iterations)
+        return resolved_budget(
+            self.max_evaluations, self.max_iterations, self.deadline_ms, optimizer
         )
-        return with_deadline(limits, self.deadline_ms, optimizer)
 
 
 def score_runs(

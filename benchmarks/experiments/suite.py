@@ -41,12 +41,12 @@ from formation_bench.benchmarks.spec import (
     canonical_json,
     from_json_value,
     labelled,
+    resolved_budget,
     resolved_config_hash,
     sha256_hex,
-    with_deadline,
 )
 from formation_bench.mpc.scenario import SCENARIOS, get_scenario
-from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
+from formation_bench.optimizers import OPTIMIZERS, Budget, get_optimizer
 from formation_bench.plugins import loaded_plugins
 
 SUITES_DIR = Path(__file__).parent / "suites"
@@ -526,21 +526,6 @@ def _dotted(where: tuple[Any, ...]) -> str:
     for part in where:
         text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
     return text
-
-
-def resolved_budget(
-    max_evaluations: int | None,
-    max_iterations: int | None,
-    deadline_ms: float | None,
-    optimizer: Optimizer,
-) -> Budget | None:
-    """The per-solve budget of a suite's budget entry for ``optimizer`` (None: its own)."""
-    limits = (
-        None
-        if max_evaluations is None and max_iterations is None
-        else Budget(max_evaluations, max_iterations)
-    )
-    return with_deadline(limits, deadline_ms, optimizer)
 
 
 def run_count(suite: Suite) -> int:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import sys
 import time
 from collections import Counter
@@ -169,6 +170,14 @@ def best_known(
     return best
 
 
+@functools.cache
+def _searchers() -> tuple[Optimizer, dict[str, Optimizer]]:
+    """The optimisers of the search, built once per process: IPOPT's solver is built on its
+    first solve and reused for every instance of the same shape."""
+    ipopt = get_optimizer("ipopt", warm_start_duals=False)
+    return ipopt, {name: get_optimizer(name) for name in population_optimizers()}
+
+
 def _search_one(
     k: int, instance: dict[str, Any], scenario_name: str, plan: SearchPlan
 ) -> tuple[int, float, np.ndarray, str]:
@@ -181,8 +190,7 @@ def _search_one(
         instance["reference"],
     )
     rng = np.random.default_rng(np.random.SeedSequence([plan.entropy, k]))
-    ipopt = get_optimizer("ipopt", warm_start_duals=False)
-    populations = {name: get_optimizer(name) for name in population_optimizers()}
+    ipopt, populations = _searchers()
     j_star, x_star, method = best_known(
         problem, np.asarray(instance["warm_start"]), rng, plan, ipopt, populations
     )

@@ -14,6 +14,7 @@ The shipped library is :func:`shipped`.
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -179,6 +180,7 @@ def load(folder: Path | str, version: str) -> Library:
     return Library(version, manifest, arrays)
 
 
+@functools.cache
 def shipped() -> Library:
-    """The library that comes with the package."""
+    """The library that comes with the package (read once per process)."""
     return load(DATA_DIR, SHIPPED_VERSION)
