@@ -27,6 +27,7 @@ from formation_bench.benchmarks.analysis.paper import (
     format_seed_table,
     format_table,
 )
+from formation_bench.benchmarks.analysis.paper_budget import shipped_line
 from formation_bench.benchmarks.checks import MAX_SEED, LimitError, check_run, check_seed_count
 from formation_bench.benchmarks.outputs import write_metrics, write_text, write_trace
 from formation_bench.benchmarks.runner import (
@@ -369,6 +370,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         print(f"{held} of {len(rows)} reported figures reached.")
     else:
         print(table)
+    print(shipped_line(DEFAULT_OPTIMIZER))
     drawn = " and figures fig3-fig7" if args.figures else ""
     print(
         f"wrote metrics.json, trace.parquet{drawn} to {out}"

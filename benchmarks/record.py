@@ -24,7 +24,7 @@ from typing import Any
 from formation_bench.benchmarks.spec import RunSpec
 from formation_bench.mpc.metrics import MetricInfo, Metrics, Per, metric_infos, metric_of
 
-RECORD_FORMAT = 2
+RECORD_FORMAT = 3
 """Bumped when the columns change; a stored run of another format is redone."""
 
 

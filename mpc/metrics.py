@@ -71,10 +71,10 @@ def closed_loop_cost(trace: Trace, instants: slice | np.ndarray = slice(None)) -
     return float(scenario.period_s * np.sum(rate[instants]))
 
 
-def settling_time(trace: Trace, tracking: np.ndarray, errors: dict[str, np.ndarray]) -> float:
-    """The first instant from which every pair's distance error stays within
+def settling_index(trace: Trace, tracking: np.ndarray, errors: dict[str, np.ndarray]) -> int | None:
+    """Index of the first instant from which every pair's distance error stays within
     ``settling_distance_band`` of its desired distance and the tracking error within
-    ``settling_tracking_band_m`` to the end of the run; NaN if the last instant is outside.
+    ``settling_tracking_band_m`` to the end of the run; None if the last instant is outside.
     ``tracking`` and ``errors`` are :func:`tracking_error` and :func:`distance_errors` of the
     trace, at every instant."""
     scenario = trace.scenario
@@ -84,10 +84,10 @@ def settling_time(trace: Trace, tracking: np.ndarray, errors: dict[str, np.ndarr
         inside &= errors[name] <= scenario.settling_distance_band * desired[i, j]
     outside = np.flatnonzero(~inside)
     if outside.size == 0:
-        return float(trace.times[0])
+        return 0
     if outside[-1] == inside.size - 1:
-        return math.nan
-    return float(trace.times[outside[-1] + 1])
+        return None
+    return int(outside[-1] + 1)
 
 
 def min_separation(trace: Trace) -> float:
@@ -169,6 +169,17 @@ class Metrics:
         "settling_distance_band of its desired distance and the tracking error within "
         "settling_tracking_band_m to the end; NaN if the end is outside",
         "s",
+    )
+    tracking_error_max_settled_m: float = metric(
+        "largest distance of the formation centre from the reference from the run's own "
+        "settling time on (settling_time_s, not the settle time); NaN if it does not settle",
+        "m",
+    )
+    distance_error_max_settled_m: dict[str, float] = metric(
+        "largest difference between a UAV pair's actual and desired distance from the run's own "
+        "settling time on; NaN if it does not settle",
+        "m",
+        per=Per.PAIR,
     )
     min_separation_m: float = metric("smallest distance between two UAVs over the run", "m")
     control_effort: tuple[float, ...] = metric(
@@ -265,6 +276,7 @@ def compute_metrics(trace: Trace) -> Metrics:
     solves = tuple(int(n) for n in trace.solved.sum(axis=0))
     by_condition = trace.reasons[trace.solved].sum(axis=0)
     steady = trace.times[1:] >= scenario.settle_time_s - 1e-9
+    settled_from = settling_index(trace, tracking_all, errors)
     return Metrics(
         tracking_error_max_m=float(tracking.max()),
         tracking_error_rms_m=float(np.sqrt(np.mean(tracking**2))),
@@ -276,7 +288,14 @@ def compute_metrics(trace: Trace) -> Metrics:
         closed_loop_cost=closed_loop_cost(trace),
         transient_cost=closed_loop_cost(trace, ~steady),
         steady_state_cost=closed_loop_cost(trace, steady),
-        settling_time_s=settling_time(trace, tracking_all, errors),
+        settling_time_s=math.nan if settled_from is None else float(trace.times[settled_from]),
+        tracking_error_max_settled_m=math.nan
+        if settled_from is None
+        else float(tracking_all[settled_from:].max()),
+        distance_error_max_settled_m={
+            name: math.nan if settled_from is None else float(err[settled_from:].max())
+            for name, err in errors.items()
+        },
         min_separation_m=min_separation(trace),
         control_effort=tuple(float(e) for e in control_effort(trace)),
         solves_at_bound_share=float(trace.plan_at_bound[trace.solved].mean()),

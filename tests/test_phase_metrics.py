@@ -87,6 +87,23 @@ def test_settling_time_is_nan_when_the_end_is_outside_and_zero_when_never_outsid
     assert compute_metrics(trace(a=calm, b=calm)).settling_time_s == 0.0
 
 
+def test_errors_from_the_settling_time_count_from_the_run_own_settling_instant():
+    # settled from k = 3: tracking 0.9, 0, 0 and distance 0, 0.1, 0 from there on
+    metrics = compute_metrics(trace())
+    assert metrics.tracking_error_max_settled_m == pytest.approx(0.9)
+    assert metrics.distance_error_max_settled_m == {"d12": pytest.approx(0.1)}
+    # from the settle time (0.4 s, k = 2) the distance error of k = 2 counts as well
+    assert metrics.distance_error_max_m == {"d12": pytest.approx(0.5)}
+    # wider bands settle from k = 1: k = 2's distance error 0.5 counts
+    wide = compute_metrics(trace(settling_distance_band=0.06))
+    assert wide.distance_error_max_settled_m == {"d12": pytest.approx(0.5)}
+    late = B.copy()
+    late[-1] = 1.0
+    unsettled = compute_metrics(trace(b=late))
+    assert math.isnan(unsettled.tracking_error_max_settled_m)
+    assert math.isnan(unsettled.distance_error_max_settled_m["d12"])
+
+
 def test_the_cost_splits_at_the_settle_time():
     # eq. (11) rate at k: w_dst * 2 (b - a)^2 + w_trj * 2 ((a + b) / 2)^2 = 2 (b-a)^2 + 1.5 (a+b)^2
     # k = 1..5: 0.06, 0.875, 4.86, 0.02, 0; times 0.2..1.0, settle 0.4 -> k = 1 is transient

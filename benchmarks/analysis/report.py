@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from formation_bench.benchmarks.analysis import stats
+from formation_bench.benchmarks.analysis import paper_budget, stats
 from formation_bench.benchmarks.experiments.store import load_results
 from formation_bench.benchmarks.record import is_metric_column
 
@@ -407,6 +407,21 @@ def _save(figure, path: Path, plt) -> Path:
 # --- the command --------------------------------------------------------------------------
 
 
+def write_paper_budget(results: pd.DataFrame, folder: Path) -> str:
+    """Write the budget-the-paper-needs tables; returns the report section."""
+    runs = paper_budget.runs_table(results)
+    table = paper_budget.budget_table(runs)
+    smallest = paper_budget.smallest_budgets(table)
+    figures = paper_budget.figure_table(runs)
+    section = paper_budget.to_markdown(table, smallest, figures)
+    (folder / "paper_budget.md").write_text(section)
+    table.to_csv(folder / "paper_budget.csv", index=False)
+    figures.to_csv(folder / "paper_budget_figures.csv", index=False)
+    # the form shipped with the package, from which reproduce names the budget
+    runs.to_csv(folder / "paper_budget_runs.csv", index=False)
+    return section
+
+
 def make_report(
     results_dir: Path | str,
     out: Path | str | None = None,
@@ -423,7 +438,10 @@ def make_report(
     folder.mkdir(parents=True, exist_ok=True)
     suite = ", ".join(sorted(results["suite"].unique())) if "suite" in results else ""
     title = f"Sweep report: {suite}" if suite else "Sweep report"
-    markdown = to_markdown(report, results, title=title) + repeat_section(results)
+    markdown = to_markdown(report, results, title=title)
+    if paper_budget.applies(results):
+        markdown += "\n" + write_paper_budget(results, folder)
+    markdown += repeat_section(results)
     (folder / "report.md").write_text(markdown)
     for name, reason in NOT_APPLICABLE.items():
         table = getattr(report, name)

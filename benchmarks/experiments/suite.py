@@ -54,10 +54,13 @@ SUITES_DIR = Path(__file__).parent / "suites"
 
 TOP_LEVEL_FIELDS = ("name", "description", "seeds", "triggers", "budgets", "trace")
 TABLE_FIELDS = ("optimizers", "scenarios")
-OPTIMIZER_FIELDS = ("name", "label", "overrides", "optional", "exclude")
+OPTIMIZER_FIELDS = ("name", "label", "overrides", "optional", "exclude", "budgets")
 SCENARIO_FIELDS = ("name", "label", "overrides")
 BUDGET_FIELDS = ("max_evaluations", "max_iterations", "deadline_ms")
 ALL_OPTIMIZERS = "*"
+
+Limits = tuple[int | None, int | None, float | None]
+"""A budget as ``(max_evaluations, max_iterations, deadline_ms)``; all None = the default."""
 
 
 class SuiteError(ValueError):
@@ -75,6 +78,8 @@ class Entry:
     name: str
     overrides: str
     """Canonical JSON of the effective overrides."""
+    budgets: tuple[Limits, ...] | None = None
+    """An optimiser's own budgets, in place of the suite's (None: the suite's)."""
 
 
 @dataclass(frozen=True)
@@ -88,8 +93,9 @@ class Suite:
     description: str
     seeds: tuple[int, ...]
     triggers: tuple[bool, ...]
-    budgets: tuple[tuple[int | None, int | None, float | None], ...]
-    """``(max_evaluations, max_iterations, deadline_ms)`` per budget; all None = default."""
+    budgets: tuple[Limits, ...]
+    """``(max_evaluations, max_iterations, deadline_ms)`` per budget; all None = default.
+    An optimiser entry with budgets of its own runs those instead."""
     trace: bool
     optimizers: tuple[Entry, ...]
     scenarios: tuple[Entry, ...]
@@ -99,6 +105,10 @@ class Suite:
     @property
     def sha256(self) -> str:
         return sha256_hex(self.text)
+
+    def budgets_of(self, entry: Entry) -> tuple[Limits, ...]:
+        """The budgets an optimiser entry runs at."""
+        return self.budgets if entry.budgets is None else entry.budgets
 
     def runs(self) -> list[RunSpec]:
         """Every run, in a fixed order (scenario, optimiser, budget, trigger, seed)."""
@@ -111,7 +121,7 @@ class Suite:
                 optimizer = get_optimizer(
                     optimizer_entry.name, **from_json_value(json.loads(optimizer_entry.overrides))
                 )
-                for limits in self.budgets:
+                for limits in self.budgets_of(optimizer_entry):
                     max_evaluations, max_iterations, deadline_ms = limits
                     budget = resolved_budget(*limits, optimizer)
                     config_hash = resolved_config_hash(scenario, optimizer, budget)
@@ -282,17 +292,19 @@ class _Validator:
             )
         return tuple(triggers)
 
-    def budgets(self) -> tuple[tuple[int | None, int | None, float | None], ...]:
-        budgets = self.data.get("budgets", ["default"])
+    def budgets(self) -> tuple[Limits, ...]:
+        return self.budget_list(("budgets",), self.data.get("budgets", ["default"]))
+
+    def budget_list(self, where_list: tuple[Any, ...], budgets: Any) -> tuple[Limits, ...]:
         if not isinstance(budgets, list) or not budgets:
             raise self.fail(
-                ("budgets",),
+                where_list,
                 'must be a non-empty list of "default" or tables '
                 f"{{max_evaluations = N, max_iterations = M, deadline_ms = T}}, got {budgets!r}",
             )
         result = []
         for k, budget in enumerate(budgets):
-            where = ("budgets", k)
+            where = (*where_list, k)
             if budget == "default":
                 result.append((None, None, None))
                 continue
@@ -331,7 +343,7 @@ class _Validator:
                 )
             )
         if len(set(result)) != len(result):
-            raise self.fail(("budgets",), "budgets must be distinct")
+            raise self.fail(where_list, "budgets must be distinct")
         return tuple(result)
 
     # optimisers and scenarios -----------------------------------------------------------------
@@ -353,6 +365,9 @@ class _Validator:
             if not isinstance(optional, bool):
                 raise self.fail((*where, "optional"), f"must be true or false, got {optional!r}")
             exclude = raw.get("exclude", [])
+            own_budgets = (
+                self.budget_list((*where, "budgets"), raw["budgets"]) if "budgets" in raw else None
+            )
             if name == ALL_OPTIMIZERS:
                 if not isinstance(exclude, list) or not all(isinstance(e, str) for e in exclude):
                     raise self.fail(
@@ -367,7 +382,7 @@ class _Validator:
                         )
                 for each in registered:
                     if not any(fnmatch.fnmatchcase(each, pattern) for pattern in exclude):
-                        entries.append(Entry(each, each, "{}"))
+                        entries.append(Entry(each, each, "{}", own_budgets))
                 continue
             if "exclude" in raw:
                 raise self.fail((*where, "exclude"), f"only allowed with name = {ALL_OPTIMIZERS!r}")
@@ -386,7 +401,8 @@ class _Validator:
                 configured = get_optimizer(name, **overrides)
             except (ValueError, TypeError) as err:
                 raise self.override_error(where, overrides, err) from None
-            entries.append(self.entry(where, raw, name, default, configured))
+            entry = self.entry(where, raw, name, default, configured)
+            entries.append(dataclasses.replace(entry, budgets=own_budgets))
         self.check_unique(entries, "optimizers")
         return tuple(entries), notes
 
@@ -427,7 +443,7 @@ class _Validator:
         self,
         optimizers: tuple[Entry, ...],
         scenarios: tuple[Entry, ...],
-        budgets: tuple[tuple[int | None, int | None, float | None], ...],
+        budgets: tuple[Limits, ...],
     ) -> None:
         """Every combination must be a run that finishes (before any of them starts)."""
         for scenario_entry in scenarios:
@@ -438,7 +454,9 @@ class _Validator:
                 optimizer = get_optimizer(
                     optimizer_entry.name, **from_json_value(json.loads(optimizer_entry.overrides))
                 )
-                for limits in budgets:
+                for limits in (
+                    budgets if optimizer_entry.budgets is None else optimizer_entry.budgets
+                ):
                     budget = resolved_budget(*limits, optimizer)
                     try:
                         check_run(scenario, optimizer, budget)
@@ -530,12 +548,5 @@ def _dotted(where: tuple[Any, ...]) -> str:
 
 def run_count(suite: Suite) -> int:
     """Number of runs of a suite, without building them."""
-    return math.prod(
-        (
-            len(suite.scenarios),
-            len(suite.optimizers),
-            len(suite.budgets),
-            len(suite.triggers),
-            len(suite.seeds),
-        )
-    )
+    budgets = sum(len(suite.budgets_of(entry)) for entry in suite.optimizers)
+    return len(suite.scenarios) * budgets * len(suite.triggers) * len(suite.seeds)
