@@ -13,6 +13,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from formation_bench.benchmarks.analysis.ioh_export import ExportError
 from formation_bench.benchmarks.checks import LimitError, check_scheduler_address
 from formation_bench.benchmarks.cli import _deadline, _seed, configured_optimizer
 from formation_bench.benchmarks.experiments.store import StoreError
@@ -31,6 +32,7 @@ USAGE_ERRORS: tuple[type[Exception], ...] = (
     StoreError,
     PluginError,
     LimitError,
+    ExportError,
 )
 
 
@@ -186,8 +188,51 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export_ioh(args: argparse.Namespace) -> int:
+    from formation_bench.benchmarks.analysis.ioh_export import export_ioh
+    from formation_bench.benchmarks.experiments.score import load_scores
+
+    results = Path(args.results)
+    if not (results / "score").is_dir():
+        raise StoreError(f"{results} holds no score runs (no score/ folder); run 'score' first")
+    folder = Path(args.out) if args.out is not None else results / "ioh"
+    archive = folder.with_name(folder.name + ".zip")
+    if args.zip and archive.is_dir():
+        raise ExportError(f"--zip: {archive} is a folder, not a file")
+    if args.zip and archive.exists() and not args.overwrite:
+        raise ExportError(f"--zip: {archive} exists; add --overwrite to replace it")
+    scores = load_scores(results)
+    try:
+        with staged_folder(folder, overwrite=args.overwrite) as staging:
+            written = export_ioh(scores, staging)
+    except OutputError as err:
+        raise ExportError(str(err)) from None
+    if args.zip:
+        _zip_folder(folder, archive)
+    print(
+        f"wrote {folder}{' and ' + str(archive) if args.zip else ''}: {len(written)} "
+        f"algorithms, {sum(written.values())} runs; IOHanalyzer reads the folder "
+        "(DataSetList) or the zip (upload)"
+    )
+    return 0
+
+
+def _zip_folder(folder: Path, archive: Path) -> None:
+    """The finished export as one zip, which appears whole or not at all."""
+    import io
+    import zipfile
+
+    from formation_bench.benchmarks.outputs import atomic_write_bytes
+
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zipped:
+        for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+            zipped.write(path, path.relative_to(folder).as_posix())
+    atomic_write_bytes(archive, buffer.getvalue())
+
+
 def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
-    """Add ``sweep`` and ``report`` to the ``formation-bench`` subcommands."""
+    """Add ``sweep``, ``score``, ``report`` and ``export-ioh`` to the subcommands."""
     sweep = sub.add_parser(
         "sweep",
         help="run a suite of closed-loop runs (resumable) into a results folder",
@@ -289,3 +334,22 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         help="write the seaborn figures (default on)",
     )
     report.set_defaults(func=_guarded("report", cmd_report))
+
+    export = sub.add_parser(
+        "export-ioh",
+        help="score runs of a results folder in the IOHprofiler format (for IOHanalyzer)",
+        description="Write every score run of DIR as IOHprofiler data: one algorithm per "
+        "optimiser and budget, the library as one function whose instances are its problems, "
+        "one run per instance and seed, raw_y the relative gap to J*.",
+    )
+    export.add_argument("results", metavar="DIR", help="results folder written by 'score'")
+    export.add_argument("--out", help="export folder (default: DIR/ioh)")
+    export.add_argument(
+        "--zip", action="store_true", help="also write the folder as OUT.zip (IOHanalyzer upload)"
+    )
+    export.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing export folder (and zip) instead of refusing",
+    )
+    export.set_defaults(func=_guarded("export-ioh", cmd_export_ioh))

@@ -2,11 +2,13 @@
 
 A *score run* is one optimiser configuration at one budget with one seed, solving every
 instance of the library from its warm start. Its rows (one per instance: the final cost, the
-gap to ``J*``, evaluations, iterations, wall time, and the evaluations to each target gap)
-are stored as ``DIR/score/<key>.parquet``, written atomically when the run is complete, so an
-interrupted ``score`` resumes with the runs still missing. Runs go to local worker processes
-(joblib's loky backend). Instance ``k`` of a run draws its random numbers from
-``SeedSequence([run entropy, k])``, so results do not depend on the worker count.
+gap to ``J*``, evaluations, iterations, wall time, the evaluations to each target gap, the
+improvements of the best cost so far and the point returned) are stored as
+``DIR/score/<key>.parquet``, written atomically when the run is complete, so an interrupted
+``score`` resumes with the runs still missing (or stored in another :data:`SCORE_FORMAT`).
+Runs go to local worker processes (joblib's loky backend). Instance ``k`` of a run draws its
+random numbers from ``SeedSequence([run entropy, k])``, so results do not depend on the worker
+count.
 """
 
 from __future__ import annotations
@@ -40,6 +42,10 @@ from formation_bench.plugins import load_plugins
 
 SCORE = "score"
 """Subfolder of a results folder that holds score runs."""
+SCORE_FORMAT = 2
+"""Layout version of the score rows (column ``score_format``); bumped when the columns
+change, so a run stored in another layout is redone on resume. 2 added the improvement
+history and the point returned."""
 
 
 def target_column(target: float) -> str:
@@ -149,6 +155,7 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
             seconds = time.perf_counter() - start
             history_nfev = result.history_nfev if result.history_nfev.size else [result.nfev]
             history_fun = result.history_fun if result.history_fun.size else [result.fun]
+            improved_nfev, improved_fun = improvements(history_nfev, history_fun)
             rows.append(
                 {
                     "instance": instance.index,
@@ -168,6 +175,10 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
                         )
                         for t in TARGETS
                     },
+                    "improvement_nfev": improved_nfev,
+                    "improvement_fun": improved_fun,
+                    "x": np.asarray(result.x, dtype=np.float64).tolist(),
+                    "score_format": SCORE_FORMAT,
                 }
             )
     frame = pd.DataFrame(rows)
@@ -183,9 +194,29 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
     return frame
 
 
+def improvements(history_nfev: np.ndarray, history_fun: np.ndarray) -> tuple[list, list]:
+    """The points of a best-so-far history where the best cost first fell to a new low."""
+    fun = np.asarray(history_fun, dtype=np.float64)
+    # a solve that starts at the warm start has no cost before its first record: it counts
+    previous = np.concatenate(([np.inf], np.minimum.accumulate(fun)[:-1]))
+    keep = fun < previous
+    return np.asarray(history_nfev)[keep].tolist(), fun[keep].tolist()
+
+
 def stored_keys(out: Path) -> set[str]:
+    """Keys of the runs stored whole in the current :data:`SCORE_FORMAT`."""
     folder = out / SCORE
-    return {p.stem for p in folder.glob("*.parquet")} if folder.is_dir() else set()
+    if not folder.is_dir():
+        return set()
+    return {p.stem for p in folder.glob("*.parquet") if _current_format(p)}
+
+
+def _current_format(path: Path) -> bool:
+    try:
+        formats = set(pq.read_table(path, columns=["score_format"]).column(0).to_pylist())
+    except Exception:  # unreadable, or written before the column existed: redone
+        return False
+    return formats == {SCORE_FORMAT}
 
 
 def write_score(out: Path, run: ScoreRun, frame: pd.DataFrame) -> Path:
