@@ -14,6 +14,7 @@ def run(optimizer, max_evaluations, seed, trigger, *, tracking=0.5, settled_trac
     """One run's row: every figure holds unless a value is given that breaks it."""
     row = {
         "optimizer": optimizer,
+        "optimizer_name": optimizer,
         "budget": "default" if max_evaluations is None else f"max_evaluations={max_evaluations}",
         "budget_max_evaluations": math.nan if max_evaluations is None else max_evaluations,
         "seed": seed,
@@ -33,16 +34,21 @@ def run(optimizer, max_evaluations, seed, trigger, *, tracking=0.5, settled_trac
 
 
 def sweep(outcome) -> pd.DataFrame:
-    """Ten seeds of 'a' at 100 and 200 evaluations, of the exact solver 'x' at its default;
+    """Ten seeds of 'a' at 100 and 200 evaluations, of the exact solver 'ipopt' at its default;
     ``outcome(optimizer, max_evaluations, seed)`` gives a run's changed values."""
     rows = []
-    for optimizer, budgets in (("a", (100, 200)), ("x", (None,))):
+    for optimizer, budgets in (("a", (100, 200)), ("ipopt", (None,))):
         for max_evaluations in budgets:
             for seed in range(10):
                 for trigger in (True, False):
                     changes = outcome(optimizer, max_evaluations, seed, trigger)
                     rows.append(run(optimizer, max_evaluations, seed, trigger, **changes))
     return pd.DataFrame(rows)
+
+
+def smallest(runs):
+    table = paper_budget.smallest_budgets(paper_budget.budget_table(runs))
+    return table.set_index(["optimizer", "reading", "target"])
 
 
 def test_nine_of_ten_seeds_reach_the_paper_and_eight_do_not():
@@ -56,17 +62,48 @@ def test_nine_of_ten_seeds_reach_the_paper_and_eight_do_not():
     table = paper_budget.budget_table(runs).set_index(["optimizer", "reading", "budget"])
     at = table.loc["a", str(Reading.SETTLE_TIME)]
     assert list(at["seeds_all_held"]) == [8, 9]
-    assert list(at["reaches_paper"]) == [False, True]
+    assert list(at["reaches_all"]) == [False, True]
     assert list(at["figures_held_median"]) == [11, 11]
     figures = paper_budget.figure_table(runs).set_index(["optimizer", "reading", "budget"])
-    held = figures.loc[("a", str(Reading.SETTLE_TIME), "100 evaluations")]
+    held = figures.loc[("a", str(Reading.SETTLE_TIME), "max_evaluations=100")]
     assert held["trigger tracking"] == 8 and held["no trigger tracking"] == 10
     assert held["trigger d31"] == 10 and held["seeds"] == 10
-    smallest = paper_budget.smallest_budgets(paper_budget.budget_table(runs))
-    found = smallest.set_index(["optimizer", "reading"])["smallest_budget"]
-    assert found["a", str(Reading.SETTLE_TIME)] == "200 evaluations"
-    assert found["a", str(Reading.SETTLING)] == "100 evaluations"
-    assert found["x", str(Reading.SETTLE_TIME)] == "default"
+    found = smallest(runs)["smallest_budget"]
+    assert found["a", str(Reading.SETTLE_TIME), paper_budget.ALL] == "200 evaluations"
+    assert found["a", str(Reading.SETTLING), paper_budget.ALL] == "100 evaluations"
+    assert found["ipopt", str(Reading.SETTLE_TIME), paper_budget.ALL] == "default"
+
+
+def test_a_figure_the_exact_solver_misses_is_left_out_of_the_second_target():
+    def outcome(optimizer, max_evaluations, seed, trigger):
+        # the no-trigger tracking figure (1.25 m) fails for the exact solver on every seed and
+        # for 'a' too; at 100 evaluations 'a' also misses the trigger tracking on seeds 0-1
+        changes = {"tracking": 1.3} if not trigger else {}
+        if trigger and max_evaluations == 100 and seed < 2:
+            changes = {"tracking": 1.5}
+        return changes
+
+    runs = paper_budget.runs_table(sweep(outcome))
+    outcomes = paper_budget.seed_outcomes(runs)
+    reached = paper_budget.reference_figures(outcomes)
+    assert reached[str(Reading.SETTLE_TIME)] == [
+        n for n in paper_budget.FIGURE_NAMES if n != "no trigger tracking"
+    ]
+    found = smallest(runs)
+    settle = str(Reading.SETTLE_TIME)
+    assert pd.isna(found.loc[("a", settle, paper_budget.ALL), "smallest_budget"])
+    assert found.loc[("a", settle, paper_budget.ALL), "seeds_held"] == 0
+    second = found.loc[("a", settle, paper_budget.REACHED)]
+    assert second["smallest_budget"] == "200 evaluations" and second["figures"] == 10
+    assert second["seeds_held"] == 10
+    markdown = paper_budget.to_markdown(
+        paper_budget.budget_table(runs),
+        paper_budget.smallest_budgets(paper_budget.budget_table(runs)),
+    )
+    assert (
+        "| a | settle-time | not reached (0/10 at 200 evaluations) | 10: 200 evaluations"
+        in markdown
+    )
 
 
 def test_a_run_that_never_settles_misses_its_error_figures_in_the_settling_reading():
@@ -78,12 +115,13 @@ def test_a_run_that_never_settles_misses_its_error_figures_in_the_settling_readi
     outcomes = paper_budget.seed_outcomes(runs)
     unsettled = outcomes[(outcomes["seed"] == 0) & (outcomes["reading"] == "settling")]
     # the four error figures of the run without the trigger fail, its solve counts have none
-    assert set(unsettled["figures_held"]) == {len(PAPER_FIGURES) - 4}
-    smallest = paper_budget.smallest_budgets(paper_budget.budget_table(runs))
-    settling = smallest[smallest["reading"] == "settling"].set_index("optimizer")
-    assert pd.isna(settling.loc["a", "smallest_budget"])
-    assert settling.loc["a", "seeds_all_held_at_largest"] == 8
-    assert "not reached" in paper_budget.to_markdown(paper_budget.budget_table(runs), smallest)
+    figures = unsettled[list(paper_budget.FIGURE_NAMES)]
+    assert set(figures.sum(axis=1)) == {len(PAPER_FIGURES) - 4}
+    row = smallest(runs).loc[("a", str(Reading.SETTLING), paper_budget.ALL)]
+    assert pd.isna(row["smallest_budget"]) and row["seeds_held"] == 8
+    table = paper_budget.budget_table(runs)
+    markdown = paper_budget.to_markdown(table, paper_budget.smallest_budgets(table))
+    assert "not reached (8/10 at 200 evaluations)" in markdown
 
 
 def test_too_many_solves_break_the_trigger_figures():
@@ -91,7 +129,8 @@ def test_too_many_solves_break_the_trigger_figures():
         return {"solves": 161} if trigger else {}
 
     outcomes = paper_budget.seed_outcomes(paper_budget.runs_table(sweep(outcome)))
-    assert set(outcomes["figures_held"]) == {len(PAPER_FIGURES) - 3}
+    held = outcomes[list(paper_budget.FIGURE_NAMES)].sum(axis=1)
+    assert set(held) == {len(PAPER_FIGURES) - 3}
 
 
 def test_a_seed_without_both_runs_is_not_counted():
@@ -122,7 +161,11 @@ def test_the_shipped_sweep_names_a_budget_for_every_optimiser_it_ran():
     assert set(per_budget) == {20}
     for optimizer in ("modified-bso", "pso", "cma-es", "de"):
         line = paper_budget.shipped_line(optimizer)
-        assert optimizer in line and "9 of 10 seeds" in line
+        assert f"({optimizer}, figures together on 9 of 10 seeds" in line
+    # the exact solvers ran at their own budgets, as references
+    assert set(runs.loc[runs["optimizer_name"].isin(paper_budget.REFERENCES), "budget"]) == {
+        "default"
+    }
 
 
 def test_the_report_writes_the_section_and_the_form_that_ships(tmp_path):
@@ -132,8 +175,9 @@ def test_the_report_writes_the_section_and_the_form_that_ships(tmp_path):
     assert paper_budget.applies(frame)
     section = write_paper_budget(frame, tmp_path)
     assert (tmp_path / "paper_budget.md").read_text() == section
-    assert "| a | settle-time | 200 evaluations | 10/10 | 200 evaluations |" in section
+    assert "| a | settle-time | 200 evaluations (10/10 seeds) |" in section
     runs = pd.read_csv(tmp_path / "paper_budget_runs.csv")
     assert len(runs) == 60
     line = paper_budget.shipped_line("a", tmp_path / "paper_budget_runs.csv")
-    assert line.startswith("The paper's 11 figures on 9 of 10 seeds take a 200 evaluations")
+    assert line.startswith("Budget the paper needs (a, figures together on 9 of 10 seeds")
+    assert "all 11: 200 evaluations (errors from 10 s), 100 evaluations (from settling)" in line
