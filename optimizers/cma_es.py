@@ -93,6 +93,7 @@ from formation_bench.optimizers.registry import register
 MAX_DOUBLINGS = 9
 """Most doublings of the default population size by IPOP and BIPOP restarts."""
 
+
 class Restarts(IntEnum):
     """What follows a run that met a stop criterion, while budget is left."""
 
@@ -279,9 +280,12 @@ class CMAES(PopulationOptimizer[CMAState]):
             state = self.draw(state, rng, counter, iteration)
             run = cma_generation(state.run, state.costs, state.normals, state.uniforms, 0)
             lam = state.plan.population_size
+        points = run[:lam]
+        # the usual case, a whole generation within the budget, without evaluate_prefix's call
+        costs = counter(points) if counter.remaining >= lam else evaluate_prefix(counter, points)
         return CMAState(
             run,
-            evaluate_prefix(counter, run[:lam]),
+            costs,
             state.normals,
             state.uniforms,
             state.first_iteration,
