@@ -87,7 +87,7 @@ from formation_bench.optimizers.cma_ops import (
     new_run,
     run_template,
 )
-from formation_bench.optimizers.population import ROWS_AHEAD, evaluate_prefix, standard_normals
+from formation_bench.optimizers.population import ROWS_AHEAD, evaluate_prefix
 from formation_bench.optimizers.registry import register
 
 MAX_DOUBLINGS = 9
@@ -322,7 +322,7 @@ class CMAES(PopulationOptimizer[CMAState]):
         rows = min(max(left, 1), ROWS_AHEAD)
         resample = self.bound_handling is BoundHandling.RESAMPLE
         uniforms = rng.random((rows, lam, n)) if resample else None
-        normals = standard_normals(rng, (rows, lam, n))
+        normals = rng.standard_normal((rows, lam, n))
         return state._replace(
             normals=normals,
             uniforms=normals if uniforms is None else uniforms,

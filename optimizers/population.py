@@ -128,32 +128,9 @@ def iteration_randoms(
     if not 0 <= row < block.uniforms.shape[0]:
         rows = min(max(t_max - iteration + 1, 1), ROWS_AHEAD)
         uniforms = rng.random((rows, block.uniforms.shape[1]))
-        normals = standard_normals(rng, (rows, *block.normals.shape[1:]))
+        normals = rng.standard_normal((rows, *block.normals.shape[1:]))
         block, row = RandomAhead(iteration, uniforms, normals), 0
     return block, block.uniforms[row], block.normals[row]
-
-
-COMPILED_NORMALS_FROM = 2048
-"""Fewest standard normals :func:`standard_normals` draws through numba's Generator support."""
-
-
-@njit(cache=True)
-def _compiled_standard_normals(rng: np.random.Generator, shape: tuple) -> np.ndarray:
-    return rng.standard_normal(shape)
-
-
-def standard_normals(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
-    """``rng.standard_normal(shape)``: the same numbers, and the generator left in the same state.
-
-    numba's Generator support runs numpy's ziggurat algorithm on the same bit
-    generator, at about 4 ns per number where numpy's own call takes 9-10 ns
-    here; but handing it the Generator costs about 7 µs per call, so only a
-    large block (at least :data:`COMPILED_NORMALS_FROM` numbers, as the blocks
-    drawn ahead at the default budgets are) goes through it.
-    """
-    if math.prod(shape) >= COMPILED_NORMALS_FROM:
-        return _compiled_standard_normals(rng, shape)
-    return rng.standard_normal(shape)
 
 
 def step_scale(bounds: Bounds, scale: float, relative_to_range: bool) -> np.ndarray:

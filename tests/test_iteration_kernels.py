@@ -26,13 +26,7 @@ from formation_bench.optimizers.original_bso_kernels import (
     shi_ideas,
     shi_step,
 )
-from formation_bench.optimizers.population import (
-    COMPILED_NORMALS_FROM,
-    ROWS_AHEAD,
-    iteration_randoms,
-    no_randoms,
-    standard_normals,
-)
+from formation_bench.optimizers.population import ROWS_AHEAD, iteration_randoms, no_randoms
 
 # (config, settings class, per-solve values, kernels reading it, the kernels' name for it)
 SETTINGS = [
@@ -190,30 +184,6 @@ def test_blocks_never_exceed_rows_ahead_and_rows_are_the_generators_numbers() ->
         np.array(seen_n[:ROWS_AHEAD]), reference.standard_normal((ROWS_AHEAD, 2))
     )
     np.testing.assert_array_equal(seen_u[ROWS_AHEAD], reference.random((ROWS_AHEAD, 4))[0])
-
-
-@pytest.mark.parametrize(
-    "shape",
-    [(3, 4), (64, 0), (1, COMPILED_NORMALS_FROM - 1), (64, 10, 10), (59, 30, 10), (5000,)],
-)
-@pytest.mark.parametrize("bit_generator", [np.random.PCG64, np.random.Philox, np.random.SFC64])
-def test_standard_normals_are_the_generators_own_and_leave_it_where_numpy_would(
-    shape: tuple[int, ...], bit_generator: type
-) -> None:
-    ours, numpy_s = np.random.Generator(bit_generator(11)), np.random.Generator(bit_generator(11))
-    ours.random(3), numpy_s.random(3)  # not at the start of the stream
-    drawn = standard_normals(ours, shape)
-    expected = numpy_s.standard_normal(shape)
-    assert drawn.shape == expected.shape and drawn.dtype == np.float64
-    np.testing.assert_array_equal(drawn, expected)
-    # the next numbers of either kind agree too: both calls advanced the same state
-    np.testing.assert_array_equal(ours.random(4), numpy_s.random(4))
-    np.testing.assert_array_equal(ours.standard_normal(3), numpy_s.standard_normal(3))
-
-
-def test_blocks_drawn_ahead_at_the_default_budgets_are_large_enough_for_the_compiled_draw() -> None:
-    # a BSO block (40 iterations of 30 x 10 normals) and a CMA-ES block (64 of 10 x 10)
-    assert 40 * 30 * 10 >= COMPILED_NORMALS_FROM and ROWS_AHEAD * 10 * 10 >= COMPILED_NORMALS_FROM
 
 
 def test_a_row_is_never_reused_when_a_step_is_repeated() -> None:
