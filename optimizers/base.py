@@ -160,6 +160,7 @@ class OptimizeResult:
 
 
 _UNLIMITED = int(np.iinfo(np.int64).max)  # computed once: np.iinfo costs ~1 us per call
+_FLOAT64 = np.dtype(np.float64)
 
 
 class BudgetExhausted(RuntimeError):
@@ -200,25 +201,28 @@ class EvaluationCounter:
         if self.max_evaluations is not None and n > self.max_evaluations - self.nfev:
             raise BudgetExhausted(f"{n} evaluations requested, {self.remaining} left")
         start = perf_counter()
-        # np.array copies, so the caller never aliases a buffer the objective may reuse
-        f = np.array(self._objective(x), dtype=np.float64)
+        raw = self._objective(x)
         self.objective_time_s += perf_counter() - start
-        if f.ndim != 1:
-            f = f.reshape(-1)
+        # a copy, so the caller never aliases a buffer the objective may reuse; an array of
+        # float64 costs (the usual answer) is copied directly, which is cheaper than np.array
+        if type(raw) is np.ndarray and raw.dtype == _FLOAT64 and raw.ndim == 1:
+            f = raw.copy()
+        else:
+            f = np.array(raw, dtype=np.float64).reshape(-1)
         if f.shape[0] != n:
             raise ValueError(f"objective returned {f.shape[0]} costs for {n} points")
         # argmin returns the first NaN if there is one, and -inf if there is one, so a
         # finite minimum proves the only non-finite values are +inf (already the mapped
         # value): the common all-finite case costs one reduction instead of three.
         i = f.argmin()
-        best = f[i]
+        best = f.item(i)
         if not math.isfinite(best):
             f[~np.isfinite(f)] = np.inf
             i = f.argmin()
-            best = f[i]
+            best = f.item(i)
         self.nfev += n
         if best < self.best_f or self.best_x is None:
-            self.best_f = float(best)
+            self.best_f = best
             self.best_x = x[i].copy()
         return f
 
@@ -342,15 +346,20 @@ class PopulationOptimizer(Optimizer, Generic[StateT]):
         nit = 0
         message = "iteration budget reached"
         iteration_limit = budget.max_iterations if budget.max_iterations is not None else math.inf
+        # read once: this loop runs once per generation, up to a few hundred times per solve
+        max_evaluations = budget.max_evaluations
+        evaluation_limit = math.inf if max_evaluations is None else max_evaluations
+        deadline_s = budget.deadline_s
+        step = self.step
         while nit < iteration_limit:
-            if counter.remaining <= 0:
+            if counter.nfev >= evaluation_limit:
                 message = "evaluation budget reached"
                 break
-            if budget.deadline_s is not None and perf_counter() - started >= budget.deadline_s:
+            if deadline_s is not None and perf_counter() - started >= deadline_s:
                 message = "deadline reached"
                 break
-            state = self.step(state, counter, bounds, rng, nit + 1)
             nit += 1
+            state = step(state, counter, bounds, rng, nit)
             history_nfev.append(counter.nfev)
             history_fun.append(counter.best_f)
         else:

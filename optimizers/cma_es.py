@@ -93,6 +93,7 @@ from formation_bench.optimizers.registry import register
 MAX_DOUBLINGS = 9
 """Most doublings of the default population size by IPOP and BIPOP restarts."""
 
+
 class Restarts(IntEnum):
     """What follows a run that met a stop criterion, while budget is left."""
 
@@ -268,26 +269,25 @@ class CMAES(PopulationOptimizer[CMAState]):
         rng: np.random.Generator,
         iteration: int,
     ) -> CMAState:
-        row = iteration - state.first_iteration
-        if row >= state.normals.shape[0]:
+        # one unpacking instead of a dozen attribute reads: this runs once per generation
+        run, costs, normals, uniforms, first_iteration, plan, campaign = state
+        row = iteration - first_iteration
+        if row >= normals.shape[0]:
             state, row = self.draw(state, rng, counter, iteration), 0
-        run = cma_generation(state.run, state.costs, state.normals, state.uniforms, row)
-        lam = state.plan.population_size
-        stop = run[lam, 0]  # the core's first entry: STOP
+            normals, uniforms, first_iteration = state.normals, state.uniforms, iteration
+        run = cma_generation(run, costs, normals, uniforms, row)
+        lam = plan.population_size
+        stop = run.item(lam, 0)  # the core's first entry: STOP
         if stop != RUNNING:
             state = self.restart(state, run, bounds, rng, STOP_NAMES[int(stop)])
             state = self.draw(state, rng, counter, iteration)
-            run = cma_generation(state.run, state.costs, state.normals, state.uniforms, 0)
-            lam = state.plan.population_size
-        return CMAState(
-            run,
-            evaluate_prefix(counter, run[:lam]),
-            state.normals,
-            state.uniforms,
-            state.first_iteration,
-            state.plan,
-            state.campaign,
-        )
+            run, _, normals, uniforms, first_iteration, plan, campaign = state
+            run = cma_generation(run, state.costs, normals, uniforms, 0)
+            lam = plan.population_size
+        points = run[:lam]
+        # the usual case, a whole generation within the budget, without evaluate_prefix's call
+        costs = counter(points) if counter.remaining >= lam else evaluate_prefix(counter, points)
+        return CMAState(run, costs, normals, uniforms, first_iteration, plan, campaign)
 
     # --- runs and restarts -----------------------------------------------------------------------
 
