@@ -212,10 +212,16 @@ def test_without_the_libraries_the_names_are_unregistered_and_explained() -> Non
         "    get_optimizer('ng-ngopt')\n"
         "except KeyError as err:\n"
         "    print(err.args[0])\n"
+        "from formation_bench.benchmarks.cli import main\n"
+        "main(['list'])\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    assert "'ng-ngopt' is not available" in done.stdout and INSTALL_HINT in done.stdout
+    first, listing = done.stdout.split("\n", 1)
+    assert "'ng-ngopt' is not available" in first and INSTALL_HINT in first
+    available, missing = listing.split("optimizers not available here:")
+    assert "modified-bso" in available and "ng-ngopt" not in available
+    assert all(name in missing for name in NAMES) and INSTALL_HINT in missing
 
 
 def test_registered_adapters_are_the_available_ones() -> None:
