@@ -47,6 +47,7 @@ cost seen (:func:`~.common.finite_costs`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -113,7 +114,7 @@ class NevergradOptimizer(Validated, PopulationOptimizer[NevergradState]):
             planned.append(budget.max_iterations)
         if budget.max_evaluations is not None:
             left = max(0, budget.max_evaluations - self.batch_size)
-            planned.append(-(-left // self.batch_size))
+            planned.append(math.ceil(left / self.batch_size))
         return int(min(planned))
 
     def init(
