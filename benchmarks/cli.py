@@ -202,6 +202,11 @@ def cmd_list(args: argparse.Namespace) -> int:
     print("optimizers:")
     for name in sorted(OPTIMIZERS):
         print(f"  {name:<36} {OPTIMIZERS[name].description}")
+    missing = OPTIMIZERS.missing()
+    if missing:
+        print("optimizers not available here:")
+        for name, reason in sorted(missing.items()):
+            print(f"  {name:<36} {reason}")
     print("scenarios:")
     for name, scenario in sorted(SCENARIOS.items()):
         print(

@@ -4,6 +4,8 @@ Each optimiser module registers its own named configurations at its bottom;
 importing the modules here fills the registry.
 """
 
+# the adapters register only what can run here, without importing the adapted libraries
+from formation_bench.optimizers import adapters
 from formation_bench.optimizers.base import (
     BatchObjective,
     Bounds,
@@ -42,6 +44,7 @@ __all__ = [
     "OriginalBSO",
     "PopulationOptimizer",
     "RandomSearch",
+    "adapters",
     "get_optimizer",
     "optimizer_names",
     "register",

@@ -68,6 +68,16 @@ def test_importing_the_harness_loads_no_solver_library():
     assert not loaded & {"casadi", "osqp", "cvxpy", "matplotlib", "seaborn"}
 
 
+def test_listing_the_optimizers_loads_no_adapted_library():
+    loaded = loaded_after(
+        "from formation_bench.optimizers import get_optimizer, optimizer_names\n"
+        "names = optimizer_names()\n"
+        "[get_optimizer(n) for n in ('ng-ngopt', 'pycma', 'mealpy-bso') if n in names]"
+    )
+    assert "formation_bench" in loaded
+    assert not loaded & {"nevergrad", "cma", "mealpy"}
+
+
 def test_the_solver_libraries_are_loaded_when_a_solver_is_built():
     loaded = loaded_after(
         "import numpy as np\n"
@@ -114,6 +124,7 @@ def test_the_wheel_installs_one_top_level_package_with_its_data(tmp_path):
         assert f"formation_bench/benchmarks/instances/data/{data}" in names
     assert "formation_bench/py.typed" in names
     assert "formation_bench/mpc/solvers/ipopt_solver.py" in names
+    assert "formation_bench/optimizers/adapters/nevergrad_adapter.py" in names
     meta = next(n for n in names if n.endswith(".dist-info/entry_points.txt"))
     entry_points = zipfile.ZipFile(wheel).read(meta).decode()
     assert "formation_bench.mpc.solvers" in entry_points

@@ -18,6 +18,7 @@ import pytest
 from formation_bench.benchmarks.instants import record_instants
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import (
+    OPTIMIZERS,
     Bounds,
     Budget,
     PopulationOptimizer,
@@ -29,6 +30,8 @@ D = 10
 BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
 CENTRE = np.linspace(-3.0, 2.0, D)  # off-centre optimum: no optimiser gets it by symmetry
 NAMES = optimizer_names()
+MISSING = OPTIMIZERS.missing()
+"""Optional optimisers (the adapters) whose library is not installed here, and why."""
 
 
 def sphere(x: np.ndarray) -> np.ndarray:
@@ -64,6 +67,14 @@ def paper_problem():
     """One UAV's problem of the paper scenario as the closed loop posed it at instant 5."""
     instants = record_instants(get_scenario("paper"), get_optimizer("modified-bso"), [5], seed=1)
     return instants[0]
+
+
+@pytest.mark.parametrize("name", sorted(MISSING) or ["-"])
+def test_optional_optimizers_not_installed_here_are_named_with_the_extra(name: str) -> None:
+    if not MISSING:
+        pytest.skip("every optional optimiser is installed, so all are checked below")
+    assert "pip install" in MISSING[name]
+    pytest.skip(f"{name} is not checked here: {MISSING[name]}")
 
 
 # --- every registered optimiser, on a real MPC problem ------------------------------------------

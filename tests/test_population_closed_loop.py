@@ -15,12 +15,16 @@ from formation_bench.benchmarks.cli import main
 from formation_bench.mpc.loop import simulate
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import PopulationOptimizer, get_optimizer, optimizer_names
+from formation_bench.optimizers.adapters import ADAPTERS
 
 SHORT = get_scenario("paper", n_steps=6, settle_time_s=0.0)
 POPULATION = [n for n in optimizer_names() if isinstance(get_optimizer(n), PopulationOptimizer)]
 
 
-@pytest.mark.parametrize("name", POPULATION)
+# the adapters' libraries make a solve 30-650 times slower (docs/optimizers.md, "Adapters")
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n in ADAPTERS else n for n in POPULATION]
+)
 @pytest.mark.parametrize("trigger", [False, True])
 def test_short_closed_loop(name: str, trigger: bool) -> None:
     trace = simulate(SHORT, get_optimizer(name), trigger=trigger, seed=0, optimizer_name=name)

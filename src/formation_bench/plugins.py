@@ -137,6 +137,7 @@ class Registry(MutableMapping[str, T], Generic[T]):
         """The entry-point group loaded before the first lookup."""
         self._check = check
         self._entries: dict[str, T] = {}
+        self._missing: dict[str, str] = {}
 
     def _load(self) -> None:
         load_entry_points(self.group)
@@ -156,8 +157,20 @@ class Registry(MutableMapping[str, T], Generic[T]):
         self._entries[name] = entry
         return entry
 
+    def add_missing(self, name: str, reason: str) -> None:
+        """Note that ``name`` is left unregistered here, and why (e.g. an extra to install)."""
+        self._missing[name] = reason
+
+    def missing(self) -> dict[str, str]:
+        """Names left unregistered in this installation, and why."""
+        self._load()
+        return dict(self._missing)
+
     def unknown(self, name: str) -> KeyError:
         """The error for a name that is not registered, listing the allowed names."""
+        self._load()
+        if name in self._missing:
+            return KeyError(f"{self.kind} {name!r} is not available: {self._missing[name]}")
         return KeyError(f"unknown {self.kind} {name!r}; registered: {', '.join(sorted(self))}")
 
     def __getitem__(self, name: str) -> T:
