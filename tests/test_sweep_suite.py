@@ -64,7 +64,11 @@ def test_shipped_suites_load_with_the_promised_contents():
     assert names[0] == "modified-bso" and len(names) >= 4
     assert all(n.startswith("modified-bso") for n in names) and len(ablation.seeds) == 30
     comparison = load_suite("comparison")
-    assert sorted(e.name for e in comparison.optimizers) == sorted(OPTIMIZERS)
+    adapters = {"pycma"} | {n for n in OPTIMIZERS if n.startswith(("ng-", "mealpy-"))}
+    assert sorted(e.name for e in comparison.optimizers) == sorted(set(OPTIMIZERS) - adapters)
+    paper_budget = load_suite("paper-budget")
+    assert [e.name for e in paper_budget.optimizers[:4]] == ["modified-bso", "pso", "cma-es", "de"]
+    assert len(paper_budget.runs()) == 4 * 5 * 2 * 10 + 2 * 2 * 10
     assert comparison.budgets == ((1200, None, None),) and len(comparison.seeds) == 30
     deadline = load_suite("deadline")
     assert [b[2] for b in deadline.budgets] == [0.5, 1.0, 2.0, 5.0]
