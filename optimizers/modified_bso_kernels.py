@@ -119,7 +119,9 @@ KernelSettings = kernel_settings_class(
 )
 
 
-@njit(cache=True)
+# inline: a thin layer. Every compiled call boundary re-optimises the whole callee tree
+# below it when the caller is built, so thin layers cost cold-start seconds; see docs/design.md
+@njit(cache=True, inline="always")
 def ideas_from_clusters(
     x: np.ndarray,
     f: np.ndarray,
