@@ -8,7 +8,6 @@ and the new ideas are fused. Like :mod:`formation_bench.optimizers.bso_ops`, the
 pure: random numbers come in as arrays and inputs are never modified.
 """
 
-
 from __future__ import annotations
 
 from dataclasses import dataclass
