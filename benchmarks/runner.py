@@ -118,7 +118,7 @@ def write_figures(
     outcome: RunOutcome, out_dir: Path, suffix: str, fig_numbers: tuple[int, int]
 ) -> list[Path]:
     """Trajectory and states figures of one run; returns the paths written."""
-    from formation_bench.benchmarks.analysis import figures  # matplotlib only when drawing
+    from formation_bench.benchmarks.analysis import run_figures as figures  # when drawing
 
     scenario = outcome.trace.scenario
     desired = scenario.desired_distances()
@@ -134,7 +134,7 @@ def write_figures(
 
 def write_trigger_figure(outcome: RunOutcome, out_dir: Path, name: str) -> Path:
     """Fig. 7 for one run."""
-    from formation_bench.benchmarks.analysis import figures
+    from formation_bench.benchmarks.analysis import run_figures as figures
 
     path = out_dir / name
     figures.save(figures.trigger_figure(outcome.frame), path)
