@@ -18,8 +18,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NoReturn
 
-import pandas as pd
-
 import formation_bench
 from formation_bench import plugins
 from formation_bench.benchmarks.analysis.paper import (
@@ -27,7 +25,6 @@ from formation_bench.benchmarks.analysis.paper import (
     format_seed_table,
     format_table,
 )
-from formation_bench.benchmarks.analysis.paper_budget import shipped_line
 from formation_bench.benchmarks.checks import MAX_SEED, LimitError, check_run, check_seed_count
 from formation_bench.benchmarks.outputs import write_metrics, write_text, write_trace
 from formation_bench.benchmarks.runner import (
@@ -267,7 +264,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             outcome = execute(spec, progress=progress)
         record = outcome.record.to_json()
         write_metrics(out / "metrics.json", [record])
-        write_trace(out / "trace.parquet", outcome.frame)
+        write_trace(out / "trace.parquet", outcome.table)
         if args.figures:
             suffix = "trigger" if args.trigger else "no_trigger"
             write_figures(outcome, out, suffix, (5, 6) if args.trigger else (3, 4))
@@ -297,6 +294,9 @@ def _staged(args: argparse.Namespace) -> Iterator[Path]:
 @contextlib.contextmanager
 def _progress_bar(label: str, total: int, show: bool | None) -> Iterator[ProgressCallback]:
     """A progress bar on stderr (by default only on a terminal), fed by the loop's callback."""
+    if not (sys.stderr.isatty() if show is None else show):
+        yield _no_progress
+        return
     from tqdm import tqdm
 
     with tqdm(
@@ -310,10 +310,14 @@ def _progress_bar(label: str, total: int, show: bool | None) -> Iterator[Progres
         yield advance
 
 
+def _no_progress(done: int, total: int) -> None:
+    pass
+
+
 def _compile_notice() -> None:
     if not kernels_cached():
         print(
-            "compiling numba kernels (first run only, about 15 s)...", file=sys.stderr, flush=True
+            "compiling numba kernels (first run only, about 10 s)...", file=sys.stderr, flush=True
         )
 
 
@@ -334,9 +338,11 @@ def reproduce_one(
             outcome = execute(spec, progress=advance)
         outcomes.append(outcome)
         print(_summary(outcome.record.to_json()), flush=True)
+    import pyarrow as pa
+
     records = [o.record.to_json() for o in outcomes]
     write_metrics(out / "metrics.json", records)
-    write_trace(out / "trace.parquet", pd.concat([o.frame for o in outcomes], ignore_index=True))
+    write_trace(out / "trace.parquet", pa.concat_tables([o.table for o in outcomes]))
     if figures:
         write_figures(outcomes[0], out, "no_trigger", (3, 4))
         write_figures(outcomes[1], out, "trigger", (5, 6))
@@ -375,6 +381,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         print(f"{held} of {len(rows)} reported figures reached.")
     else:
         print(table)
+    from formation_bench.benchmarks.analysis.paper_budget import shipped_line  # pandas
+
     print(shipped_line(DEFAULT_OPTIMIZER))
     drawn = " and figures fig3-fig7" if args.figures else ""
     print(

@@ -1,7 +1,9 @@
 """Writing and reading a run's outputs: ``metrics.json`` and the Parquet trace.
 
 The trace is stored long: one row per update instant and UAV, so that pandas
-(or DuckDB) can group and plot it without knowing the array layout.
+(or DuckDB) can group and plot it without knowing the array layout. It is built
+and written with pyarrow alone: pandas takes longer to import than a warm run of
+the paper scenario spends outside its solves, and only the figures need it.
 """
 
 from __future__ import annotations
@@ -10,21 +12,69 @@ import json
 import os
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from formation_bench.mpc.loop import Trace
 from formation_bench.mpc.trigger import TRIGGER_CONDITIONS
 
+if TYPE_CHECKING:
+    import pandas as pd
+    import pyarrow as pa
 
-def trace_frame(trace: Trace) -> pd.DataFrame:
-    """The trace as a long DataFrame: one row per instant (0..T) and UAV.
+
+def arrow_column(values: np.ndarray) -> pa.Array:
+    """A 1-D float64, int64 or bool array as an Arrow array, NaN stored as null (as pandas
+    writes it).
+
+    Built from the array's buffers: ``pyarrow.array`` imports pandas to ask whether its
+    argument is a pandas object, which alone costs more than writing the trace.
+    """
+    import pyarrow as pa  # here, not at the top: commands that write no trace skip it
+
+    n_rows = values.shape[0]
+    if values.dtype == np.bool_:
+        return pa.Array.from_buffers(
+            pa.bool_(), n_rows, [None, pa.py_buffer(np.packbits(values, bitorder="little"))], 0
+        )
+    kinds = {np.dtype(np.float64): pa.float64(), np.dtype(np.int64): pa.int64()}
+    if values.dtype not in kinds:
+        raise TypeError(f"trace columns are float64, int64 or bool, got {values.dtype}")
+    data = pa.py_buffer(np.ascontiguousarray(values))
+    missing = np.isnan(values) if values.dtype == np.float64 else np.zeros(n_rows, dtype=bool)
+    n_missing = int(missing.sum())
+    valid = pa.py_buffer(np.packbits(~missing, bitorder="little")) if n_missing else None
+    return pa.Array.from_buffers(kinds[values.dtype], n_rows, [valid, data], n_missing)
+
+
+def text_column(value: str, n_rows: int) -> pa.Array:
+    """``value`` repeated ``n_rows`` times, typed as pandas writes its string columns."""
+    import pyarrow as pa
+
+    encoded = value.encode()
+    offsets = np.arange(n_rows + 1, dtype=np.int64) * len(encoded)
+    return pa.Array.from_buffers(
+        pa.large_string(), n_rows, [None, pa.py_buffer(offsets), pa.py_buffer(encoded * n_rows)], 0
+    )
+
+
+def seed_column(seed: int, n_rows: int) -> pa.Array:
+    """A run's seed on every row: int64, or its decimal string when it does not fit (a
+    128-bit sweep entropy repeated with ``run --seed``)."""
+    if seed < 2**63:
+        return arrow_column(np.full(n_rows, seed, dtype=np.int64))
+    return text_column(str(seed), n_rows)
+
+
+def trace_frame(trace: Trace) -> pa.Table:
+    """The trace as a long table: one row per instant (0..T) and UAV.
 
     The last instant holds the final state only: its control and solve
     columns are NaN / False.
     """
+    import pyarrow as pa
+
     n_instants, n_uav = trace.states.shape[:2]
     n_steps = n_instants - 1
     step = np.repeat(np.arange(n_instants), n_uav)
@@ -38,42 +88,43 @@ def trace_frame(trace: Trace) -> pd.DataFrame:
     controls = pad(trace.controls, np.nan)
     reasons = pad(trace.reasons, False)
     desired = (trace.reference[:, None, :] + trace.desired_offsets).reshape(-1, 2)
-    frame = pd.DataFrame(
-        {
-            "optimizer": trace.optimizer,
-            "scenario": trace.scenario.name,
-            "trigger": trace.trigger,
-            # a 128-bit seed (a sweep run's entropy, repeated with run --seed) does not fit an
-            # int64 column: such a seed is stored as its decimal string
-            "seed": trace.seed if trace.seed < 2**63 else str(trace.seed),
-            "step": step,
-            "time_s": np.repeat(trace.times, n_uav),
-            "uav": uav,
-            "x_m": states[:, 0],
-            "y_m": states[:, 1],
-            "heading_rad": states[:, 2],
-            "speed_m_s": states[:, 3],
-            "accel_m_s2": controls[:, 0],
-            "turn_rate_rad_s": controls[:, 1],
-            "solved": pad(trace.solved, False).astype(bool),
-            **{
-                f"trigger_{name}": reasons[:, k].astype(bool)
-                for k, name in enumerate(TRIGGER_CONDITIONS)
-            },
-            "solve_time_s": pad(trace.solve_time_s, np.nan),
-            "nfev": pad(trace.nfev, 0).astype(np.int64),
-            "solve_cost": pad(trace.solve_cost, np.nan),
-            "solve_failed": pad(trace.solve_failed, False).astype(bool),
-            "plan_at_bound": pad(trace.plan_at_bound, False).astype(bool),
-            "ref_x_m": np.repeat(trace.reference[:, 0], n_uav),
-            "ref_y_m": np.repeat(trace.reference[:, 1], n_uav),
-            "ref_heading_rad": np.repeat(trace.reference_heading, n_uav),
-            "desired_x_m": desired[:, 0],
-            "desired_y_m": desired[:, 1],
-        }
+    n_rows = n_instants * n_uav
+    columns = {
+        "optimizer": text_column(trace.optimizer, n_rows),
+        "scenario": text_column(trace.scenario.name, n_rows),
+        "trigger": np.full(n_rows, trace.trigger, dtype=bool),
+        "seed": seed_column(trace.seed, n_rows),
+        "step": step,
+        "time_s": np.repeat(trace.times, n_uav),
+        "uav": uav,
+        "x_m": states[:, 0],
+        "y_m": states[:, 1],
+        "heading_rad": states[:, 2],
+        "speed_m_s": states[:, 3],
+        "accel_m_s2": controls[:, 0],
+        "turn_rate_rad_s": controls[:, 1],
+        "solved": pad(trace.solved, False).astype(bool),
+        **{
+            f"trigger_{name}": reasons[:, k].astype(bool)
+            for k, name in enumerate(TRIGGER_CONDITIONS)
+        },
+        "solve_time_s": pad(trace.solve_time_s, np.nan),
+        "nfev": pad(trace.nfev, 0).astype(np.int64),
+        "solve_cost": pad(trace.solve_cost, np.nan),
+        "solve_failed": pad(trace.solve_failed, False).astype(bool),
+        "plan_at_bound": pad(trace.plan_at_bound, False).astype(bool),
+        "ref_x_m": np.repeat(trace.reference[:, 0], n_uav),
+        "ref_y_m": np.repeat(trace.reference[:, 1], n_uav),
+        "ref_heading_rad": np.repeat(trace.reference_heading, n_uav),
+        "desired_x_m": desired[:, 0],
+        "desired_y_m": desired[:, 1],
+    }
+    table = pa.Table.from_arrays(
+        [c if isinstance(c, pa.Array) else arrow_column(c) for c in columns.values()],
+        names=list(columns),
     )
-    assert len(frame) == (n_steps + 1) * n_uav
-    return frame
+    assert table.num_rows == (n_steps + 1) * n_uav
+    return table
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -107,14 +158,18 @@ def write_text(path: Path, text: str) -> None:
     atomic_write_bytes(path, text.encode())
 
 
-def write_trace(path: Path, frame: pd.DataFrame) -> None:
-    """Write a trace DataFrame as Parquet."""
+def write_trace(path: Path, table: pa.Table) -> None:
+    """Write a trace table as Parquet."""
+    import pyarrow.parquet as pq
+
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
-    frame.to_parquet(tmp, index=False)
+    pq.write_table(table, tmp)
     os.replace(tmp, path)
 
 
 def read_trace(path: Path) -> pd.DataFrame:
     """Read a trace written by :func:`write_trace`."""
+    import pandas as pd
+
     return pd.read_parquet(path)

@@ -3,14 +3,15 @@
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
-from formation_bench.benchmarks.outputs import trace_frame
+from formation_bench.benchmarks.outputs import seed_column, text_column, trace_frame
 from formation_bench.benchmarks.record import Provenance, RunDescription, RunRecord
 from formation_bench.benchmarks.spec import RunSpec
 from formation_bench.mpc.cost import batch_cost
@@ -19,6 +20,10 @@ from formation_bench.mpc.metrics import compute_metrics, pair_names
 from formation_bench.mpc.model import rollout
 from formation_bench.plugins import load_plugins
 
+if TYPE_CHECKING:
+    import pandas as pd
+    import pyarrow as pa
+
 
 @dataclass(frozen=True)
 class RunOutcome:
@@ -26,8 +31,14 @@ class RunOutcome:
 
     record: RunRecord
     trace: Trace
-    frame: pd.DataFrame
-    """The trace table (:func:`trace_table`)."""
+    table: pa.Table
+    """The trace table (:func:`trace_table`), as it is written to ``trace.parquet``."""
+
+    @functools.cached_property
+    def frame(self) -> pd.DataFrame:
+        """The trace table as a pandas DataFrame (converted on first use: the figures and a
+        sweep's store need it, a run without figures does not import pandas)."""
+        return self.table.to_pandas()
 
 
 def kernels_cached() -> bool:
@@ -80,29 +91,34 @@ def execute(spec: RunSpec, *, progress: ProgressCallback | None = None) -> RunOu
         progress=progress,
     )
     metrics = compute_metrics(trace)
-    frame = trace_table(trace, spec)
+    table = trace_table(trace, spec)
     record = RunRecord(
         RunDescription.of(spec, scenario.n_steps, scenario.settle_time_s),
         metrics,
         Provenance.here(time.perf_counter() - start),
     )
-    return RunOutcome(record, trace, frame)
+    return RunOutcome(record, trace, table)
 
 
-def trace_table(trace: Trace, spec: RunSpec) -> pd.DataFrame:
+def trace_table(trace: Trace, spec: RunSpec) -> pa.Table:
     """The trace as a long table, labelled as the run's record is (seed, budget)."""
-    frame = trace_frame(trace)
-    # a 128-bit seed does not fit an int64 column: such a seed is stored as its decimal string
-    frame["seed"] = spec.seed if spec.seed < 2**63 else str(spec.seed)
-    frame.insert(frame.columns.get_loc("trigger") + 1, "budget", spec.budget_label)
-    return frame
+    table = trace_frame(trace)
+    n_rows = table.num_rows
+    table = table.set_column(
+        table.schema.get_field_index("seed"), "seed", seed_column(spec.seed, n_rows)
+    )
+    return table.add_column(
+        table.schema.get_field_index("trigger") + 1,
+        "budget",
+        text_column(spec.budget_label, n_rows),
+    )
 
 
 def write_figures(
     outcome: RunOutcome, out_dir: Path, suffix: str, fig_numbers: tuple[int, int]
 ) -> list[Path]:
     """Trajectory and states figures of one run; returns the paths written."""
-    from formation_bench.benchmarks.analysis import figures  # matplotlib only when drawing
+    from formation_bench.benchmarks.analysis import run_figures as figures  # when drawing
 
     scenario = outcome.trace.scenario
     desired = scenario.desired_distances()
@@ -118,7 +134,7 @@ def write_figures(
 
 def write_trigger_figure(outcome: RunOutcome, out_dir: Path, name: str) -> Path:
     """Fig. 7 for one run."""
-    from formation_bench.benchmarks.analysis import figures
+    from formation_bench.benchmarks.analysis import run_figures as figures
 
     path = out_dir / name
     figures.save(figures.trigger_figure(outcome.frame), path)

@@ -13,10 +13,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from formation_bench.benchmarks.analysis.ioh_export import ExportError
 from formation_bench.benchmarks.checks import LimitError, check_scheduler_address
 from formation_bench.benchmarks.cli import _deadline, _seed, configured_optimizer
-from formation_bench.benchmarks.experiments.store import StoreError
 from formation_bench.benchmarks.experiments.suite import (
     SuiteError,
     load_suite,
@@ -26,14 +24,14 @@ from formation_bench.benchmarks.experiments.sweep import DEFAULT_JOBS, SweepErro
 from formation_bench.benchmarks.staging import OutputError, check_output_folder, staged_folder
 from formation_bench.plugins import PluginError
 
-USAGE_ERRORS: tuple[type[Exception], ...] = (
-    SuiteError,
-    SweepError,
-    StoreError,
-    PluginError,
-    LimitError,
-    ExportError,
-)
+
+def usage_errors() -> tuple[type[Exception], ...]:
+    """The errors a command reports in one line; the modules of the last two read and write
+    Parquet with pandas, so they are imported only when a command fails."""
+    from formation_bench.benchmarks.analysis.ioh_export import ExportError
+    from formation_bench.benchmarks.experiments.store import StoreError
+
+    return (SuiteError, SweepError, StoreError, PluginError, LimitError, ExportError)
 
 
 def _jobs(text: str) -> int:
@@ -57,7 +55,7 @@ def _guarded(command: str, func: Callable[[argparse.Namespace], int]):
     def run(args: argparse.Namespace) -> int:
         try:
             return func(args)
-        except USAGE_ERRORS as err:
+        except usage_errors() as err:
             print(f"formation-bench {command}: error: {err}", file=sys.stderr)
             return 2
         except BrokenPipeError:  # output piped into e.g. `head`, which stopped reading
@@ -147,6 +145,7 @@ def cmd_score(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     # the statistics and plotting libraries are imported only by the command that uses them
     from formation_bench.benchmarks.analysis.report import ReportError, make_report
+    from formation_bench.benchmarks.experiments.store import StoreError
 
     start = time.perf_counter()
     results = Path(args.results)
@@ -189,8 +188,9 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_export_ioh(args: argparse.Namespace) -> int:
-    from formation_bench.benchmarks.analysis.ioh_export import export_ioh
+    from formation_bench.benchmarks.analysis.ioh_export import ExportError, export_ioh
     from formation_bench.benchmarks.experiments.score import load_scores
+    from formation_bench.benchmarks.experiments.store import StoreError
 
     results = Path(args.results)
     if not (results / "score").is_dir():

@@ -12,7 +12,8 @@ from numba import njit
 from formation_bench.optimizers.clustering import lloyd_kmeans_kernel
 
 
-@njit(cache=True)
+# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+@njit(cache=True, inline="always")
 def pick_index(u: float, n: int) -> int:
     """Index in 0..n-1 from a uniform; the min guards against rounding up to n."""
     return min(int(u * n), n - 1)
@@ -49,7 +50,8 @@ def cluster_centres(
     return centre, sizes
 
 
-@njit(cache=True)
+# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+@njit(cache=True, inline="always")
 def cluster_population(
     population: np.ndarray, costs: np.ndarray, uniforms: np.ndarray, kmeans_max_iter: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -60,18 +62,38 @@ def cluster_population(
     :func:`cluster_centres`. Fused into one kernel to save Python-level calls.
     """
     idx = distinct_indices(uniforms, population.shape[0])
-    labels, _ = lloyd_kmeans_kernel(population, population[idx], kmeans_max_iter)
+    # the initial centres gathered by a loop (fancy indexing compiles generic code)
+    d = population.shape[1]
+    initial = np.empty((idx.shape[0], d))
+    for j in range(idx.shape[0]):
+        for c in range(d):
+            initial[j, c] = population[idx[j], c]
+    labels, _ = lloyd_kmeans_kernel(population, initial, kmeans_max_iter)
     centre, sizes = cluster_centres(labels, costs, uniforms.shape[0])
     return labels, centre, sizes
 
 
-@njit(cache=True)
+# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+@njit(cache=True, inline="always")
 def nonempty(centre_index: np.ndarray) -> np.ndarray:
     """Indices of the non-empty clusters (those with ``centre_index >= 0``), ascending."""
-    return np.flatnonzero(centre_index >= 0)
+    # a counting loop: np.flatnonzero compiles its own generic implementation (a quarter
+    # second of a cold start) for what is a handful of integers
+    count = 0
+    for j in range(centre_index.shape[0]):
+        if centre_index[j] >= 0:
+            count += 1
+    used = np.empty(count, dtype=np.int64)
+    k = 0
+    for j in range(centre_index.shape[0]):
+        if centre_index[j] >= 0:
+            used[k] = j
+            k += 1
+    return used
 
 
-@njit(cache=True)
+# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+@njit(cache=True, inline="always")
 def random_centre(centre_index: np.ndarray, u: float) -> int:
     """Population index of the centre of a non-empty cluster chosen uniformly by ``u``."""
     used = nonempty(centre_index)

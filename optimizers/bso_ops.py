@@ -97,7 +97,8 @@ def weighted_centres(weights: np.ndarray, centres: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+@njit(cache=True, inline="always")
 def all_centre_auxiliary(
     population: np.ndarray,
     centre_index: np.ndarray,
@@ -111,11 +112,21 @@ def all_centre_auxiliary(
     ``seeds`` is ``(N, m)``; the columns of empty clusters are ignored.
     """
     used = nonempty(centre_index)
-    w = chaotic_weights(map_id, seeds[:, used], n_iterations, normalise)
-    return weighted_centres(w, population[centre_index[used]])
+    # gathers as loops: fancy indexing compiles numba's generic advanced-indexing code
+    n, k, d = seeds.shape[0], used.shape[0], population.shape[1]
+    picked = np.empty((n, k))
+    centres = np.empty((k, d))
+    for j in range(k):
+        for i in range(n):
+            picked[i, j] = seeds[i, used[j]]
+        for c in range(d):
+            centres[j, c] = population[centre_index[used[j]], c]
+    w = chaotic_weights(map_id, picked, n_iterations, normalise)
+    return weighted_centres(w, centres)
 
 
-@njit(cache=True)
+# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+@njit(cache=True, inline="always")
 def _member(labels: np.ndarray, cluster: int, k: int) -> int:
     """Population index of the k-th member (in index order) of ``cluster``."""
     seen = 0
@@ -170,7 +181,8 @@ def shi_select(
                 src = centre_index[c]
             else:
                 src = _member(labels, c, pick_index(u[3], sizes[c]))
-            out[i] = population[src]
+            for c in range(d):
+                out[i, c] = population[src, c]
         else:
             a = pick_index(u[1], k)
             b = pick_index(u[4], k - 1)
@@ -185,11 +197,13 @@ def shi_select(
                 ia = _member(labels, ca, pick_index(u[3], sizes[ca]))
                 ib = _member(labels, cb, pick_index(u[5], sizes[cb]))
             r = u[6]
-            out[i] = r * population[ia] + (1.0 - r) * population[ib]
+            for c in range(d):
+                out[i, c] = r * population[ia, c] + (1.0 - r) * population[ib, c]
     return out
 
 
-@njit(cache=True)
+# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+@njit(cache=True, inline="always")
 def logsig_factor(t_now: float, t_max: float, slope: float) -> float:
     """Eq. (10) step-size factor ``logsig((0.5 T_max - T_now) / k)`` in (0, 1)."""
     return 1.0 / (1.0 + math.exp(-(0.5 * t_max - t_now) / slope))
@@ -253,12 +267,15 @@ def install_best(
             best = i
     x_new = x.copy()
     f_new = f.copy()
-    x_new[slot] = candidates[best]
+    # element loop, not a row assignment: see greedy_select
+    for c in range(x.shape[1]):
+        x_new[slot, c] = candidates[best, c]
     f_new[slot] = candidate_costs[best]
     return x_new, f_new
 
 
-@njit(cache=True)
+# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+@njit(cache=True, inline="always")
 def generate_ideas(
     population: np.ndarray,
     labels: np.ndarray,

@@ -8,7 +8,6 @@ and the new ideas are fused. Like :mod:`formation_bench.optimizers.bso_ops`, the
 pure: random numbers come in as arrays and inputs are never modified.
 """
 
-
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -119,7 +118,9 @@ KernelSettings = kernel_settings_class(
 )
 
 
-@njit(cache=True)
+# inline: a thin layer. Every compiled call boundary re-optimises the whole callee tree
+# below it when the caller is built, so thin layers cost cold-start seconds; see docs/design.md
+@njit(cache=True, inline="always")
 def ideas_from_clusters(
     x: np.ndarray,
     f: np.ndarray,

@@ -61,9 +61,12 @@ def greedy_select(
     x = old_x.copy()
     f = old_f.copy()
     improved = 0
+    # element loops rather than row assignments: a row assignment makes numba compile a
+    # shape-mismatch error path (with its message formatting), a second of a cold start
     for i in range(new_x.shape[0]):
         if new_f[i] < old_f[i]:
-            x[i] = new_x[i]
+            for c in range(x.shape[1]):
+                x[i, c] = new_x[i, c]
             f[i] = new_f[i]
             improved += 1
     return x, f, improved

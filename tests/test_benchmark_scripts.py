@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from formation_bench.benchmarks.perf import population_speed, scaling, speed
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -70,3 +72,20 @@ def test_kernel_comparison_times_both_kernels_on_paper_problems():
     assert figures["kernel_max_relative_difference"] < 1e-12
     table = speed.format_kernel_comparison(figures)
     assert "ns per evaluation" in table and "ratio now / before, per repeat (3 repeats)" in table
+
+
+def test_startup_script_measures_overhead_and_compile(tmp_path, monkeypatch):
+    from formation_bench.benchmarks.perf import startup
+
+    short = ["--set", "n_steps=8", "--set", "settle_time_s=0.5", "--set", "max_iterations=3"]
+    monkeypatch.setattr(startup, "RUN", [*startup.RUN, *short])
+    assert "pandas" not in startup.modules_loaded([*startup.RUN, "--out", str(tmp_path / "m")])
+    warm = startup.warm_overhead(1, tmp_path)
+    assert warm["ratio"]["median"] > 1  # a command takes longer than its solves
+    assert 0 < warm["solve_sum_s"]["median"] < warm["wall_s"]["median"]
+    cold = startup.cold_start(1, tmp_path)
+    kernels = cold["kernels_cpu_s"]
+    assert "formation_bench.optimizers.modified_bso_kernels.modified_bso_iteration" in kernels
+    assert "formation_bench.mpc.cost.batch_cost" in kernels
+    assert cold["compile_cpu_s"] == pytest.approx(sum(kernels.values()))
+    assert cold["wall_s"]["median"] > warm["wall_s"]["median"]

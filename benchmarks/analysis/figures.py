@@ -10,7 +10,9 @@ Two kinds of input:
   distributions, solve-time ECDFs, solve counts, trigger conditions, convergence
   curves and the trigger trade-off.
 
-Each function returns a Matplotlib figure; the caller saves or shows it.
+Each function returns a Matplotlib figure; the caller saves or shows it. The run figures
+live in :mod:`~formation_bench.benchmarks.analysis.run_figures` (no seaborn import) and are
+re-exported here.
 """
 
 from __future__ import annotations
@@ -20,116 +22,15 @@ import numpy as np
 import pandas as pd
 import seaborn as sns
 
+# the figures of one run are drawn without seaborn; re-exported so that every figure is here
+from formation_bench.benchmarks.analysis.run_figures import (  # noqa: F401
+    save,
+    states_figure,
+    trajectory_figure,
+    trigger_figure,
+)
+from formation_bench.benchmarks.analysis.run_figures import wide as _wide
 from formation_bench.mpc.metrics import pair_names
-
-
-def _wide(frame: pd.DataFrame, column: str) -> pd.DataFrame:
-    return frame.pivot(index="time_s", columns="uav", values=column)
-
-
-def _title(frame: pd.DataFrame, what: str) -> str:
-    first = frame.iloc[0]
-    trigger = "with trigger" if first["trigger"] else "without trigger"
-    return f"{what}: {first['optimizer']}, {first['scenario']}, {trigger}, seed {first['seed']}"
-
-
-def trajectory_figure(frame: pd.DataFrame, snapshot_every_s: float = 8.0) -> plt.Figure:
-    """Figs. 3 and 5: UAV paths, the reference path, and the formation at intervals."""
-    sns.set_theme(style="whitegrid")
-    fig, ax = plt.subplots(figsize=(8, 6), constrained_layout=True)
-    palette = sns.color_palette("deep", frame["uav"].nunique())
-    reference = frame[frame["uav"] == frame["uav"].min()]
-    ax.plot(reference["ref_x_m"], reference["ref_y_m"], "k--", lw=1.2, label="reference centre")
-    for colour, (uav, rows) in zip(palette, frame.groupby("uav"), strict=True):
-        ax.plot(rows["x_m"], rows["y_m"], color=colour, lw=1.5, label=f"UAV {uav}")
-        ax.plot(rows["x_m"].iloc[0], rows["y_m"].iloc[0], "o", color=colour, ms=6)
-    x, y = _wide(frame, "x_m"), _wide(frame, "y_m")
-    times = x.index.to_numpy()
-    for t in np.arange(0.0, times[-1] + 1e-9, snapshot_every_s):
-        row = int(np.argmin(np.abs(times - t)))
-        px, py = x.iloc[row].to_numpy(), y.iloc[row].to_numpy()
-        ax.fill(px, py, facecolor="none", edgecolor="0.4", lw=0.8)
-        centre_x, centre_y = px.mean(), py.mean()
-        ax.plot(centre_x, centre_y, "x", color="0.3", ms=5)
-    ax.plot([], [], color="0.4", lw=0.8, label=f"formation every {snapshot_every_s:g} s")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.legend(loc="best", fontsize=9)
-    ax.set_title(_title(frame, "Trajectories"), fontsize=10)
-    return fig
-
-
-def states_figure(
-    frame: pd.DataFrame, desired_distances: dict[str, float], settle_time_s: float
-) -> plt.Figure:
-    """Figs. 4 and 6: states, controls, pairwise distances and tracking error over time."""
-    sns.set_theme(style="whitegrid")
-    fig, axes = plt.subplots(3, 2, figsize=(11, 9), sharex=True, constrained_layout=True)
-    panels = [
-        ("speed_m_s", "speed v (m/s)", 1.0),
-        ("heading_rad", "heading θ (deg)", 180.0 / np.pi),
-        ("accel_m_s2", "acceleration a (m/s²)", 1.0),
-        ("turn_rate_rad_s", "turn rate ω (rad/s)", 1.0),
-    ]
-    for ax, (column, label, scale) in zip(axes.flat[:4], panels, strict=True):
-        wide = _wide(frame, column) * scale
-        for uav in wide.columns:
-            drawstyle = "steps-post" if column in ("accel_m_s2", "turn_rate_rad_s") else "default"
-            ax.plot(wide.index, wide[uav], lw=1.2, label=f"UAV {uav}", drawstyle=drawstyle)
-        ax.set_ylabel(label)
-    axes[0, 0].legend(fontsize=8)
-    x, y = _wide(frame, "x_m"), _wide(frame, "y_m")
-    ax = axes[2, 0]
-    n_uav = x.shape[1]
-    for name, i, j in pair_names(n_uav):
-        distance = np.hypot(x.iloc[:, i] - x.iloc[:, j], y.iloc[:, i] - y.iloc[:, j])
-        (line,) = ax.plot(x.index, distance, lw=1.2, label=name)
-        ax.axhline(desired_distances[name], color=line.get_color(), ls=":", lw=1)
-    ax.set_ylabel("pairwise distance (m)")
-    ax.set_xlabel("time (s)")
-    ax.legend(fontsize=8, title="dotted: desired", title_fontsize=8)
-    ax = axes[2, 1]
-    reference = frame[frame["uav"] == frame["uav"].min()].set_index("time_s")
-    error = np.hypot(x.mean(axis=1) - reference["ref_x_m"], y.mean(axis=1) - reference["ref_y_m"])
-    ax.plot(error.index, error, color="k", lw=1.2)
-    ax.axvline(settle_time_s, color="0.5", ls="--", lw=1, label=f"settle time {settle_time_s:g} s")
-    ax.set_yscale("log")
-    ax.set_ylabel("centre tracking error (m)")
-    ax.set_xlabel("time (s)")
-    ax.legend(fontsize=8)
-    fig.suptitle(_title(frame, "States and distances"), fontsize=10)
-    return fig
-
-
-def trigger_figure(frame: pd.DataFrame) -> plt.Figure:
-    """Fig. 7: the instants at which each UAV re-solved."""
-    sns.set_theme(style="whitegrid")
-    fig, ax = plt.subplots(figsize=(10, 3.2), constrained_layout=True)
-    uavs = sorted(frame["uav"].unique())
-    n_instants = frame.loc[frame["uav"] == uavs[0], "step"].max()
-    for row, uav in enumerate(uavs):
-        times = frame.loc[(frame["uav"] == uav) & frame["solved"], "time_s"].to_numpy()
-        ax.vlines(times, row + 0.6, row + 1.4, lw=1.2, color=sns.color_palette("deep")[row % 10])
-        ax.text(
-            1.005,
-            row + 1,
-            f"{times.size}/{n_instants}",
-            transform=ax.get_yaxis_transform(),
-            va="center",
-            fontsize=9,
-        )
-    ax.set_yticks(range(1, len(uavs) + 1), [f"UAV {u}" for u in uavs])
-    ax.set_ylim(0.4, len(uavs) + 0.6)
-    ax.set_xlabel("time (s)")
-    ax.set_title(_title(frame, "Solve instants (count / update instants)"), fontsize=10)
-    return fig
-
-
-def save(fig: plt.Figure, path) -> None:
-    """Save as PNG at a legible resolution and free the figure."""
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def _settled(frame: pd.DataFrame, settle_time_s: float) -> pd.DataFrame:

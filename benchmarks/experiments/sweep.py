@@ -24,15 +24,17 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import pandas as pd
-
-from formation_bench.benchmarks.experiments.store import ResultStore, StoreBusy
 from formation_bench.benchmarks.experiments.suite import Suite
 from formation_bench.benchmarks.provenance import git_info, machine_info, now, package_versions
 from formation_bench.benchmarks.runner import execute
 from formation_bench.benchmarks.spec import RunSpec
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from formation_bench.benchmarks.experiments.store import ResultStore
 
 DEFAULT_JOBS = 2
 SCHEDULER_TIMEOUT_S = 20
@@ -240,6 +242,9 @@ def run_sweep(
     say = log or (lambda text: print(text, file=sys.stderr, flush=True))
     if jobs < 1:
         raise SweepError(f"--jobs must be an integer >= 1, got {jobs}")
+    # the store reads and writes Parquet with pandas: imported by the command that uses it
+    from formation_bench.benchmarks.experiments.store import ResultStore, StoreBusy
+
     start = time.perf_counter()
     store = ResultStore(out)
     try:
