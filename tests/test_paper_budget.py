@@ -84,8 +84,7 @@ def test_a_figure_the_exact_solver_misses_is_left_out_of_the_second_target():
         return changes
 
     runs = paper_budget.runs_table(sweep(outcome))
-    outcomes = paper_budget.seed_outcomes(runs)
-    reached = paper_budget.reference_figures(outcomes)
+    reached = paper_budget.reference_figures(paper_budget.figure_table(runs))
     assert reached[str(Reading.SETTLE_TIME)] == [
         n for n in paper_budget.FIGURE_NAMES if n != "no trigger tracking"
     ]

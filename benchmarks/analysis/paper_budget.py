@@ -103,51 +103,18 @@ def seed_outcomes(runs: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def reference_figures(outcomes: pd.DataFrame) -> dict[str, list[str]]:
-    """Per reading, the figures that some exact solver (:data:`REFERENCES`) meets on at least
-    :data:`REQUIRED_SHARE` of its seeds (no entry without reference runs)."""
-    references = outcomes[outcomes["optimizer_name"].isin(REFERENCES)]
-    reached: dict[str, list[str]] = {}
-    for (reading, _), group in references.groupby(["reading", "optimizer"], sort=False):
-        needed = required_seeds(group["seed"].nunique())
-        met = [n for n in FIGURE_NAMES if group[n].sum() >= needed]
-        known = reached.setdefault(reading, [])
-        reached[reading] = [n for n in FIGURE_NAMES if n in known or n in met]
-    return reached
-
-
-def budget_table(runs: pd.DataFrame) -> pd.DataFrame:
-    """Per optimiser, reading and budget: seeds; seeds on which all 11 figures hold, and on
-    which every figure the exact solvers reach holds; the median count of figures held; and
-    whether each target is met on :data:`REQUIRED_SHARE` of the seeds."""
-    outcomes = seed_outcomes(runs)
-    if outcomes.empty:
-        return pd.DataFrame()
-    reached = reference_figures(outcomes)
-    figures = outcomes[list(FIGURE_NAMES)]
-    outcomes["figures_held"] = figures.sum(axis=1)
-    outcomes["all_held"] = figures.all(axis=1)
-    outcomes["reached_held"] = [
-        bool(row[reached[reading]].all()) if reading in reached else False
-        for reading, (_, row) in zip(outcomes["reading"], figures.iterrows(), strict=True)
-    ]
+def _by_budget(outcomes: pd.DataFrame, **columns: tuple[str, str]) -> pd.DataFrame:
+    """Seed outcomes grouped per optimiser, reading and budget, ordered by budget."""
     table = (
         outcomes.groupby(["optimizer", "reading", "budget"], sort=False, dropna=False)
         .agg(
+            optimizer_name=("optimizer_name", "first"),
             max_evaluations=("max_evaluations", "first"),
             seeds=("seed", "nunique"),
-            seeds_all_held=("all_held", "sum"),
-            seeds_reached_held=("reached_held", "sum"),
-            figures_held_median=("figures_held", "median"),
+            **columns,
         )
         .reset_index()
     )
-    needed = table["seeds"].map(required_seeds)
-    table["reaches_all"] = table["seeds_all_held"] >= needed
-    table["reaches_reached"] = table["seeds_reached_held"] >= needed
-    table["figures_reached_by_references"] = [
-        len(reached.get(reading, ())) for reading in table["reading"]
-    ]
     return table.sort_values(
         ["optimizer", "reading", "max_evaluations"], na_position="first"
     ).reset_index(drop=True)
@@ -159,18 +126,51 @@ def figure_table(runs: pd.DataFrame) -> pd.DataFrame:
     outcomes = seed_outcomes(runs)
     if outcomes.empty:
         return outcomes
-    table = (
-        outcomes.groupby(["optimizer", "reading", "budget"], sort=False, dropna=False)
-        .agg(
-            max_evaluations=("max_evaluations", "first"),
-            seeds=("seed", "nunique"),
-            **{name: (name, "sum") for name in FIGURE_NAMES},
-        )
-        .reset_index()
+    return _by_budget(outcomes, **{name: (name, "sum") for name in FIGURE_NAMES})
+
+
+def reference_figures(figures: pd.DataFrame) -> dict[str, list[str]]:
+    """Per reading, the figures that some exact solver (:data:`REFERENCES`) meets on at least
+    :data:`REQUIRED_SHARE` of its seeds (no entry without reference runs); ``figures`` is a
+    :func:`figure_table`."""
+    references = figures[figures["optimizer_name"].isin(REFERENCES)]
+    met = references[list(FIGURE_NAMES)].ge(references["seeds"].map(required_seeds), axis=0)
+    return {
+        reading: [n for n in FIGURE_NAMES if group[n].any()]
+        for reading, group in met.groupby(references["reading"], sort=False)
+    }
+
+
+def budget_table(runs: pd.DataFrame) -> pd.DataFrame:
+    """Per optimiser, reading and budget: seeds; seeds on which all 11 figures hold, and on
+    which every figure the exact solvers reach holds; the median count of figures held; and
+    whether each target is met on :data:`REQUIRED_SHARE` of the seeds."""
+    outcomes = seed_outcomes(runs)
+    if outcomes.empty:
+        return pd.DataFrame()
+    reached = reference_figures(
+        _by_budget(outcomes, **{name: (name, "sum") for name in FIGURE_NAMES})
     )
-    return table.sort_values(
-        ["optimizer", "reading", "max_evaluations"], na_position="first"
-    ).reset_index(drop=True)
+    figures = outcomes[list(FIGURE_NAMES)]
+    outcomes["figures_held"] = figures.sum(axis=1)
+    outcomes["all_held"] = figures.all(axis=1)
+    outcomes["reached_held"] = False
+    for reading, names in reached.items():
+        rows = outcomes["reading"] == reading
+        outcomes.loc[rows, "reached_held"] = figures.loc[rows, names].all(axis=1)
+    table = _by_budget(
+        outcomes,
+        seeds_all_held=("all_held", "sum"),
+        seeds_reached_held=("reached_held", "sum"),
+        figures_held_median=("figures_held", "median"),
+    )
+    needed = table["seeds"].map(required_seeds)
+    table["reaches_all"] = table["seeds_all_held"] >= needed
+    table["reaches_reached"] = table["seeds_reached_held"] >= needed
+    table["figures_reached_by_references"] = [
+        len(reached.get(reading, ())) for reading in table["reading"]
+    ]
+    return table
 
 
 def smallest_budgets(table: pd.DataFrame) -> pd.DataFrame:
