@@ -13,6 +13,7 @@ from formation_bench.benchmarks.experiments.suite import (
     SuiteError,
     load_suite,
     parse_suite,
+    run_count,
     shipped_suites,
 )
 from formation_bench.benchmarks.experiments.sweep import execute_run
@@ -313,3 +314,17 @@ def test_every_registered_configuration_hashes_the_same_in_any_process():
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
     ).stdout
     assert there.strip() == str(here)
+
+
+def test_an_optimiser_entry_runs_at_its_own_budgets(tmp_path):
+    text = GOOD.replace('label = "plain"', 'label = "plain"\nbudgets = ["default"]')
+    suite = parse_suite(text, tmp_path / "t.toml")
+    per_label = {}
+    for run in suite.runs():
+        per_label.setdefault(run.optimizer_label, set()).add(run.budget_max_evaluations)
+    assert per_label["plain"] == {None}
+    assert per_label["modified-bso[max_iterations=2]"] == {None, 200}
+    assert len(suite.runs()) == run_count(suite) == (2 + 1) * 2 * 2
+    bad = GOOD.replace('label = "plain"', 'label = "plain"\nbudgets = [{ max_evals = 5 }]')
+    with pytest.raises(SuiteError, match=r"optimizers\[1\]\.budgets\[0\]\.max_evals"):
+        parse_suite(bad, tmp_path / "t.toml")

@@ -81,6 +81,10 @@ class Entry:
     budgets: tuple[Limits, ...] | None = None
     """An optimiser's own budgets, in place of the suite's (None: the suite's)."""
 
+    def budgets_or(self, suite_budgets: tuple[Limits, ...]) -> tuple[Limits, ...]:
+        """The budgets this entry runs at, given the suite's."""
+        return suite_budgets if self.budgets is None else self.budgets
+
 
 @dataclass(frozen=True)
 class Suite:
@@ -108,7 +112,7 @@ class Suite:
 
     def budgets_of(self, entry: Entry) -> tuple[Limits, ...]:
         """The budgets an optimiser entry runs at."""
-        return self.budgets if entry.budgets is None else entry.budgets
+        return entry.budgets_or(self.budgets)
 
     def runs(self) -> list[RunSpec]:
         """Every run, in a fixed order (scenario, optimiser, budget, trigger, seed)."""
@@ -454,9 +458,7 @@ class _Validator:
                 optimizer = get_optimizer(
                     optimizer_entry.name, **from_json_value(json.loads(optimizer_entry.overrides))
                 )
-                for limits in (
-                    budgets if optimizer_entry.budgets is None else optimizer_entry.budgets
-                ):
+                for limits in optimizer_entry.budgets_or(budgets):
                     budget = resolved_budget(*limits, optimizer)
                     try:
                         check_run(scenario, optimizer, budget)
