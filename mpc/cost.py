@@ -24,6 +24,7 @@ agree.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numba as nb
@@ -204,6 +205,82 @@ def reference_cost(
         tracking = float(np.sum((centre - reference[k]) ** 2))
         total += period * (w_dst * formation + w_trj * tracking)
     return total
+
+
+PACKED_HEADER = 6
+"""Leading scalars of :func:`pack_problem`'s array: neighbours, horizon, sub-steps, period,
+``w_dst`` and ``w_centre``."""
+
+
+def pack_problem(
+    state: np.ndarray,
+    block_of_step: np.ndarray,
+    period: float,
+    substeps: int,
+    distance_targets: np.ndarray,
+    centre_target: np.ndarray,
+    w_dst: float,
+    w_centre: float,
+) -> np.ndarray:
+    """:func:`batch_cost`'s problem as one flat float64 array, as :func:`compiled_cost` reads it.
+
+    Header (:data:`PACKED_HEADER` values), then the state (4), the block index of every
+    period (H, exact as floats), the distance targets (J * H * 2) and the centre target (H * 2).
+    """
+    horizon = block_of_step.shape[0]
+    n_neighbours = distance_targets.shape[0]
+    header = [n_neighbours, horizon, substeps, period, w_dst, w_centre]
+    return np.concatenate(
+        (
+            np.array(header, dtype=np.float64),
+            state,
+            block_of_step,
+            distance_targets.reshape(-1),
+            centre_target.reshape(-1),
+        ),
+        dtype=np.float64,
+    )
+
+
+@nb.njit(cache=True)
+def packed_batch_cost(decisions: np.ndarray, data: np.ndarray) -> np.ndarray:
+    """:func:`batch_cost` of the problem packed by :func:`pack_problem` (same arithmetic)."""
+    n_neighbours, horizon, substeps = int(data[0]), int(data[1]), int(data[2])
+    period, w_dst, w_centre = data[3], data[4], data[5]
+    at = PACKED_HEADER
+    state = data[at : at + 4]
+    at += 4
+    block_of_step = np.empty(horizon, dtype=np.int64)
+    for k in range(horizon):
+        block_of_step[k] = int(data[at + k])
+    at += horizon
+    size = n_neighbours * horizon * 2
+    distance_targets = data[at : at + size].reshape((n_neighbours, horizon, 2))
+    at += size
+    centre_target = data[at : at + 2 * horizon].reshape((horizon, 2))
+    return batch_cost(
+        decisions, state, block_of_step, period, substeps, distance_targets, centre_target,
+        w_dst, w_centre,
+    )  # fmt: skip
+
+
+def _compiled_cost(x_ptr, n, d, data_ptr, out_ptr):  # type: ignore[no-untyped-def]
+    header = nb.carray(data_ptr, (PACKED_HEADER,))
+    n_neighbours, horizon = int(header[0]), int(header[1])
+    size = PACKED_HEADER + 4 + horizon + 2 * n_neighbours * horizon + 2 * horizon
+    costs = packed_batch_cost(nb.carray(x_ptr, (n, d)), nb.carray(data_ptr, (size,)))
+    out = nb.carray(out_ptr, (n,))
+    for i in range(n):
+        out[i] = costs[i]
+
+
+@functools.cache
+def compiled_cost() -> nb.core.ccallback.CFunc:
+    """:func:`packed_batch_cost` as a C function with
+    :data:`~formation_bench.optimizers.compiled.COST_SIGNATURE` (built on first use)."""
+    from formation_bench.optimizers.compiled import COST_SIGNATURE
+
+    return nb.cfunc(COST_SIGNATURE, cache=True)(_compiled_cost)
 
 
 def block_map(horizon_steps: int, n_blocks: int) -> np.ndarray:

@@ -16,10 +16,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from formation_bench.mpc.cost import batch_cost, block_map, reference_cost
+from formation_bench.mpc.cost import (
+    batch_cost,
+    block_map,
+    compiled_cost,
+    pack_problem,
+    reference_cost,
+)
 from formation_bench.mpc.model import coast, rollout
 from formation_bench.mpc.scenario import EstimateExtension, Scenario
 from formation_bench.optimizers.base import Bounds
+from formation_bench.optimizers.compiled import CompiledObjective
 
 
 @dataclass(frozen=True)
@@ -146,6 +153,17 @@ class LocalProblem:
             self.scenario.w_dst,
             self._w_centre,
         )
+
+    @functools.cached_property
+    def compiled(self) -> CompiledObjective:
+        """The same cost as a compiled objective, for optimisers with a compiled solve loop."""
+        scenario = self.scenario
+        cost = compiled_cost()
+        data = pack_problem(
+            self.state, self.block_of_step, scenario.period_s, scenario.rk4_substeps,
+            self._distance_targets, self._centre_target, scenario.w_dst, self._w_centre,
+        )  # fmt: skip
+        return CompiledObjective(cost.address, data, cost)
 
     def reference_cost(self, decision: np.ndarray) -> float:
         """Eq. (14) for one decision vector by the plain reference implementation."""

@@ -29,10 +29,16 @@ from formation_bench.fields import (  # noqa: F401
     check_real,
     coerce_enum,
 )
+from formation_bench.optimizers.compiled import CompiledObjective, compiled_of
 
 
 class BatchObjective(Protocol):
-    """A cost evaluated for a whole population in one call: ``(n, d) -> (n,)``."""
+    """A cost evaluated for a whole population in one call: ``(n, d) -> (n,)``.
+
+    An objective may also carry a ``compiled`` attribute, a
+    :class:`~formation_bench.optimizers.compiled.CompiledObjective` computing the same costs;
+    optimisers with a compiled solve loop then call that instead, without Python in between.
+    """
 
     def __call__(self, x: np.ndarray) -> np.ndarray: ...
 
@@ -338,6 +344,10 @@ class PopulationOptimizer(Optimizer, Generic[StateT]):
         budget = self.default_budget if budget is None else budget
         started = perf_counter()
         x0 = check_x0(x0, bounds)
+        compiled = compiled_of(objective)
+        # a deadline needs the clock between iterations, which only the Python loop reads
+        if compiled is not None and budget.deadline_s is None and self.has_compiled_loop():
+            return self.minimize_compiled(compiled, bounds, rng, budget, x0)
         counter = EvaluationCounter(objective, bounds.dim, budget.max_evaluations)
         max_iterations = self.planned_iterations(budget)
         state = self.init(counter, bounds, rng, x0, max_iterations)
@@ -381,3 +391,22 @@ class PopulationOptimizer(Optimizer, Generic[StateT]):
     def result_info(self, state: StateT) -> dict[str, Any]:
         """Optimiser-specific extras copied into :attr:`OptimizeResult.info`."""
         return {}
+
+    def has_compiled_loop(self) -> bool:
+        """True when :meth:`minimize_compiled` can solve with this configuration."""
+        return False
+
+    def minimize_compiled(
+        self,
+        objective: CompiledObjective,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        budget: Budget,
+        x0: np.ndarray | None,
+    ) -> OptimizeResult:
+        """:meth:`minimize` with the iterations in compiled code (no deadline; ``x0`` checked).
+
+        It must give the result of the Python loop to the bit, with the same draws from
+        ``rng``; ``info["objective_time_s"]`` is NaN there, since compiled code has no clock.
+        """
+        raise NotImplementedError(f"{type(self).__name__} has no compiled solve loop")

@@ -27,7 +27,13 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from formation_bench.fields import pack_settings
-from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
+from formation_bench.optimizers.base import (
+    Bounds,
+    Budget,
+    EvaluationCounter,
+    OptimizeResult,
+    PopulationOptimizer,
+)
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
@@ -37,19 +43,24 @@ from formation_bench.optimizers.bso_ops import (
 )
 from formation_bench.optimizers.chaos import ChaoticMap
 from formation_bench.optimizers.clustering import ClusteringBackend, sklearn_kmeans
+from formation_bench.optimizers.compiled import CompiledObjective
 from formation_bench.optimizers.modified_bso_kernels import (
     KernelSettings,
     ModifiedBSOConfig,
     ideas_from_clusters,
+    modified_bso_block,
     modified_bso_iteration,
 )
 from formation_bench.optimizers.population import (
+    ITERATION_LIMIT_NONE,
     RandomAhead,
+    compiled_initial_population,
     evaluate_prefix,
     greedy_select,
     initial_population,
     iteration_randoms,
     no_randoms,
+    run_compiled_blocks,
     step_scale,
 )
 from formation_bench.optimizers.registry import register
@@ -198,6 +209,49 @@ class ModifiedBSO(ModifiedBSOConfig, PopulationOptimizer[ModifiedBSOState]):
         return ModifiedBSOState(
             x, f, ideas, costs, settings, state.packed, randoms, state.replacements + replace
         )
+
+    def has_compiled_loop(self) -> bool:
+        return self.clustering is ClusteringBackend.COMPILED
+
+    def minimize_compiled(
+        self,
+        objective: CompiledObjective,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        budget: Budget,
+        x0: np.ndarray | None,
+    ) -> OptimizeResult:
+        t_max = self.planned_iterations(budget)
+        x, f, start = compiled_initial_population(
+            objective, bounds, rng, self.population_size, x0, budget.max_evaluations
+        )
+        n, d = x.shape
+        packed = self.kernel_settings(bounds, t_max)
+        replacement = (
+            self.chaos_replacement, float(self.p_replace), int(self.n_replace),
+            int(self.replacement_map),
+        )  # fmt: skip
+        iteration_limit = (
+            budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
+        )
+        carry = [x, f, np.empty((0, d)), np.empty(0), 0]
+
+        def run_block(
+            nit: int, randoms: RandomAhead, history_nfev: np.ndarray, history_fun: np.ndarray
+        ) -> int:
+            x, f, ideas, idea_costs, replacements = carry
+            x, f, ideas, idea_costs, done, replaced = modified_bso_block(
+                objective.address, objective.data, start.counts, start.best, x, f, ideas,
+                idea_costs, randoms.uniforms, randoms.normals, nit, randoms.first_iteration,
+                iteration_limit, replacement, packed, history_nfev, history_fun,
+            )  # fmt: skip
+            carry[:] = [x, f, ideas, idea_costs, replacements + replaced]
+            return done
+
+        return run_compiled_blocks(
+            run_block, start, rng, budget, t_max, self.uniforms_per_step(n, d), (n, d),
+            lambda: {"chaotic_replacements": carry[4]},
+        )  # fmt: skip
 
 
 register(

@@ -19,6 +19,7 @@ from formation_bench.fields import Validated, kernel_settings_class, setting
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
+    chaotic_candidates,
     cluster_population,
     generate_ideas,
     install_best,
@@ -27,6 +28,7 @@ from formation_bench.optimizers.bso_ops import (
 )
 from formation_bench.optimizers.chaos import ChaoticMap
 from formation_bench.optimizers.clustering import DEFAULT_MAX_ITER, ClusteringBackend
+from formation_bench.optimizers.compiled import NFEV, evaluate, evaluate_prefix, remaining
 from formation_bench.optimizers.original_bso_kernels import PER_SOLVE
 from formation_bench.optimizers.population import greedy_select
 
@@ -211,3 +213,62 @@ def modified_bso_iteration(
         x, f, labels, centre_index, sizes, u, normals, replace, candidates, candidate_costs,
         iteration, packed,
     )  # fmt: skip
+
+
+@njit(cache=True)
+def modified_bso_block(
+    address: int,
+    data: np.ndarray,
+    counts: np.ndarray,
+    best: np.ndarray,
+    x: np.ndarray,
+    f: np.ndarray,
+    ideas: np.ndarray,
+    idea_costs: np.ndarray,
+    uniforms: np.ndarray,
+    normals: np.ndarray,
+    nit: int,
+    first_iteration: int,
+    iteration_limit: int,
+    replacement: tuple,
+    packed: tuple,
+    history_nfev: np.ndarray,
+    history_fun: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
+    """Iterations ``nit + 1``, ... of a compiled solve, one per row of the random block.
+
+    Each is :meth:`ModifiedBSO.step` with the objective called through ``address``/``data``
+    (see :mod:`~formation_bench.optimizers.compiled`); the block stops early at the iteration
+    limit or when no evaluation is left. ``replacement`` is ``(chaos_replacement, p_replace,
+    n_replace, replacement_map)``. Returns ``(x, f, ideas, idea_costs, iterations done,
+    replacements)``; the history arrays get one entry per iteration done.
+    """
+    chaos_replacement, p_replace, n_replace, replacement_map = replacement
+    s = KernelSettings(*packed)
+    m = s.n_clusters
+    d = x.shape[1]
+    done = 0
+    replacements = 0
+    row = nit + 1 - first_iteration
+    while nit < iteration_limit and row < uniforms.shape[0] and remaining(counts) > 0:
+        nit += 1
+        u = uniforms[row]
+        replace = chaos_replacement and u[m] < p_replace and remaining(counts) >= n_replace
+        if replace:
+            candidates = chaotic_candidates(
+                replacement_map, u[m + 2 : m + 2 + d], n_replace, s.lower, s.upper
+            )
+            candidate_costs = evaluate(address, data, candidates, n_replace, counts, best)
+            replacements += 1
+        else:
+            candidates, candidate_costs = x, f
+        x, f, ideas = modified_bso_iteration(
+            x, f, ideas, idea_costs, u, normals[row], replace, candidates, candidate_costs,
+            nit, packed,
+        )  # fmt: skip
+        idea_costs = evaluate_prefix(address, data, ideas, counts, best)
+        history_nfev[done] = counts[NFEV]
+        history_fun[done] = best[0]
+        done += 1
+        row += 1
+    return x, f, ideas, idea_costs, done, replacements

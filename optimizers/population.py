@@ -8,12 +8,21 @@ them evaluates a batch of new points that the budget may cut short.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from formation_bench.optimizers.base import Bounds, EvaluationCounter
+from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, OptimizeResult
+from formation_bench.optimizers.compiled import (
+    HAS_BEST,
+    NFEV,
+    CompiledObjective,
+    new_tally,
+    remaining,
+)
+from formation_bench.optimizers.compiled import evaluate_prefix as compiled_evaluate_prefix
 
 
 def initial_population(
@@ -151,3 +160,95 @@ def progress(iteration: int, t_max: int) -> float:
     if t_max <= 1:
         return 0.0
     return min(max((iteration - 1) / (t_max - 1), 0.0), 1.0)
+
+
+ITERATION_LIMIT_NONE = 9223372036854775807
+"""The iteration limit a compiled block receives when the budget sets none."""
+
+
+class CompiledStart(NamedTuple):
+    """A compiled solve after its initial population: what :func:`run_compiled_blocks` needs."""
+
+    counts: np.ndarray
+    """The tally's counts (see :func:`~formation_bench.optimizers.compiled.new_tally`)."""
+    best: np.ndarray
+    """The tally's best cost and point."""
+
+
+def compiled_initial_population(
+    objective: CompiledObjective,
+    bounds: Bounds,
+    rng: np.random.Generator,
+    size: int,
+    x0: np.ndarray | None,
+    max_evaluations: int | None,
+) -> tuple[np.ndarray, np.ndarray, CompiledStart]:
+    """:func:`initial_population` for a compiled solve: the same points, costs and draws."""
+    start = CompiledStart(*new_tally(bounds.dim, max_evaluations))
+    points = bounds.sample(rng, size)
+    if x0 is not None:
+        points[0] = x0
+    costs = compiled_evaluate_prefix(
+        objective.address, objective.data, points, start.counts, start.best
+    )
+    return points, costs, start
+
+
+BlockRunner = Callable[[int, RandomAhead, np.ndarray, np.ndarray], int]
+"""``(nit, randoms, history_nfev, history_fun) -> iterations done``: runs iterations ``nit + 1``,
+... with the block's random rows while the budget allows, writing one history entry each."""
+
+
+def run_compiled_blocks(
+    run_block: BlockRunner,
+    start: CompiledStart,
+    rng: np.random.Generator,
+    budget: Budget,
+    t_max: int,
+    n_uniforms: int,
+    normal_shape: tuple[int, ...],
+    info: Callable[[], dict],
+) -> OptimizeResult:
+    """The loop of :meth:`PopulationOptimizer.minimize` for a compiled solve, block by block.
+
+    Random numbers are drawn exactly as :func:`iteration_randoms` draws them (a block when an
+    iteration needs one, of the same rows), so the compiled solve and the Python one take the
+    same numbers, leave ``rng`` in the same state and give the same result.
+    """
+    counts, best = start
+    history_nfev = [int(counts[NFEV])]
+    history_fun = [float(best[0])]
+    iteration_limit = (
+        budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
+    )
+    message = "iteration budget reached"
+    nit = 0
+    while nit < iteration_limit:
+        if remaining(counts) <= 0:
+            message = "evaluation budget reached"
+            break
+        iteration = nit + 1
+        rows = min(max(t_max - iteration + 1, 1), ROWS_AHEAD)
+        uniforms = rng.random((rows, n_uniforms))
+        normals = rng.standard_normal((rows, *normal_shape))
+        block_nfev = np.empty(rows, dtype=np.int64)
+        block_fun = np.empty(rows)
+        done = run_block(nit, RandomAhead(iteration, uniforms, normals), block_nfev, block_fun)
+        history_nfev.extend(block_nfev[:done].tolist())
+        history_fun.extend(block_fun[:done].tolist())
+        nit += done
+    else:
+        if remaining(counts) <= 0:
+            message = "evaluation budget reached"
+    assert counts[HAS_BEST] == 1
+    return OptimizeResult(
+        x=best[1:].copy(),
+        fun=float(best[0]),
+        nfev=int(counts[NFEV]),
+        nit=nit,
+        success=True,
+        message=message,
+        history_nfev=np.asarray(history_nfev, dtype=np.int64),
+        history_fun=np.asarray(history_fun),
+        info={"objective_time_s": math.nan, **info()},
+    )

@@ -1,0 +1,201 @@
+"""Compiled objectives and the compiled solve loops: the same result as the Python loop, to the bit.
+
+Every population optimiser with a compiled loop is solved twice from the same seed, once with
+the objective's compiled handle and once through a plain Python callable (which has none):
+the best point, its cost, the counts, the history, the message and the generator's state after
+the solve must all be equal. The evaluation rules (budget, non-finite costs, ties) are checked
+on a hand-made compiled cost.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+import pytest
+from test_cost_and_problem import random_problem
+
+from formation_bench.mpc.scenario import PAPER
+from formation_bench.optimizers import Bounds, Budget, PopulationOptimizer, get_optimizer
+from formation_bench.optimizers.compiled import (
+    COST_SIGNATURE,
+    HAS_BEST,
+    NFEV,
+    CompiledObjective,
+    compiled_of,
+    evaluate,
+    evaluate_prefix,
+    new_tally,
+)
+from formation_bench.optimizers.registry import optimizer_names
+
+
+def _shifted_sphere(x_ptr, n, d, data_ptr, out_ptr):  # type: ignore[no-untyped-def]
+    """sum((x - data[:d])^2), except NaN where data[d] marks the row, -inf at data[d + 1]."""
+    x = nb.carray(x_ptr, (n, d))
+    data = nb.carray(data_ptr, (d + 2,))
+    out = nb.carray(out_ptr, (n,))
+    for i in range(n):
+        s = 0.0
+        for c in range(d):
+            s += (x[i, c] - data[c]) ** 2
+        out[i] = s
+        if i == int(data[d]):
+            out[i] = math.nan
+        if i == int(data[d + 1]):
+            out[i] = -math.inf
+
+
+SPHERE = nb.cfunc(COST_SIGNATURE, cache=True)(_shifted_sphere)
+
+
+def sphere(centre: np.ndarray, nan_row: int = -1, minus_inf_row: int = -1) -> CompiledObjective:
+    data = np.concatenate([centre, [nan_row, minus_inf_row]]).astype(np.float64)
+    return CompiledObjective(SPHERE.address, data, SPHERE)
+
+
+class CompiledSphere:
+    """A batch objective with a compiled handle (the Python call gives the same costs)."""
+
+    def __init__(self, centre: np.ndarray) -> None:
+        self.compiled = sphere(centre)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self.compiled(x)
+
+
+class PlainCallable:
+    """The same objective without its handle: solved by the Python loop."""
+
+    def __init__(self, objective) -> None:
+        self.objective = objective
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self.objective(x)
+
+
+def compiled_loop_optimizers() -> list[str]:
+    return [
+        name
+        for name in optimizer_names()
+        if isinstance(get_optimizer(name), PopulationOptimizer)
+        and get_optimizer(name).has_compiled_loop()
+    ]
+
+
+def test_local_problem_handle_gives_the_problem_costs_to_the_bit():
+    rng = np.random.default_rng(3)
+    for n_blocks, substeps in [(4, 1), (20, 1), (3, 3)]:
+        scenario = PAPER.with_overrides(n_blocks=n_blocks, rk4_substeps=substeps)
+        problem = random_problem(rng, scenario)
+        assert compiled_of(problem) is problem.compiled
+        decisions = problem.bounds.sample(rng, 23)
+        assert np.array_equal(problem.compiled(decisions), problem(decisions))
+
+
+def test_handle_refuses_a_null_address_and_bad_data():
+    with pytest.raises(ValueError, match="address"):
+        CompiledObjective(0, np.zeros(3))
+    with pytest.raises(ValueError, match="data"):
+        CompiledObjective(SPHERE.address, np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="data"):
+        CompiledObjective(SPHERE.address, np.zeros(3, dtype=np.float32))
+    assert compiled_of(lambda x: x.sum(axis=1)) is None
+
+
+def test_evaluate_maps_non_finite_costs_and_keeps_the_first_best():
+    objective = sphere(np.zeros(2), nan_row=1, minus_inf_row=2)
+    points = np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.5, 0.0], [0.5, 0.0]])
+    counts, best = new_tally(2, max_evaluations=None)
+    costs = evaluate(objective.address, objective.data, points, 5, counts, best)
+    assert costs.tolist() == [1.0, math.inf, math.inf, 0.25, 0.25]
+    assert counts[NFEV] == 5 and counts[HAS_BEST] == 1
+    assert best[0] == 0.25 and best[1:].tolist() == [0.5, 0.0]  # the first of the tie, row 3
+
+
+def test_evaluate_prefix_stops_at_the_budget():
+    objective = sphere(np.zeros(2))
+    points = np.arange(10.0).reshape(5, 2)
+    counts, best = new_tally(2, max_evaluations=3)
+    costs = evaluate_prefix(objective.address, objective.data, points, counts, best)
+    assert counts[NFEV] == 3
+    assert costs[:3].tolist() == [1.0, 13.0, 41.0] and np.all(np.isinf(costs[3:]))
+    again = evaluate_prefix(objective.address, objective.data, points, counts, best)
+    assert counts[NFEV] == 3 and np.all(np.isinf(again))
+
+
+def test_an_all_infinite_first_batch_still_holds_a_best_point():
+    objective = sphere(np.zeros(2), nan_row=0)
+    counts, best = new_tally(2, max_evaluations=None)
+    evaluate(objective.address, objective.data, np.ones((1, 2)), 1, counts, best)
+    assert counts[HAS_BEST] == 1 and best[0] == math.inf and best[1:].tolist() == [1.0, 1.0]
+
+
+def test_the_paper_optimiser_has_a_compiled_loop():
+    assert "modified-bso" in compiled_loop_optimizers()
+
+
+BUDGETS = [
+    None,
+    Budget(max_evaluations=1200),
+    Budget(max_evaluations=777),
+    Budget(max_iterations=3),
+    Budget(max_evaluations=3000, max_iterations=70),
+    Budget(max_evaluations=31),
+    Budget(max_evaluations=5),
+]
+
+
+def same_result(a, b) -> bool:
+    return (
+        np.array_equal(a.x, b.x)
+        and a.fun == b.fun
+        and a.nfev == b.nfev
+        and a.nit == b.nit
+        and a.message == b.message
+        and a.success == b.success
+        and np.array_equal(a.history_nfev, b.history_nfev)
+        and np.array_equal(a.history_fun, b.history_fun)
+        and {k: v for k, v in a.info.items() if k != "objective_time_s"}
+        == {k: v for k, v in b.info.items() if k != "objective_time_s"}
+    )
+
+
+@pytest.mark.parametrize("name", compiled_loop_optimizers())
+def test_compiled_loop_gives_the_python_loop_result_on_the_paper_problem(name):
+    optimizer = get_optimizer(name)
+    rng = np.random.default_rng(11)
+    problem = random_problem(rng, PAPER)
+    warm_start = problem.bounds.sample(rng, 1)[0]
+    for k, budget in enumerate(BUDGETS):
+        x0 = warm_start if k % 2 == 0 else None
+        python_rng, compiled_rng = np.random.default_rng(k), np.random.default_rng(k)
+        python = optimizer.minimize(PlainCallable(problem), problem.bounds, python_rng, budget, x0)
+        compiled = optimizer.minimize(problem, problem.bounds, compiled_rng, budget, x0)
+        assert math.isnan(compiled.info["objective_time_s"])
+        assert not math.isnan(python.info["objective_time_s"])
+        assert same_result(python, compiled), (name, budget)
+        # the generator is left where the Python loop leaves it: the next solve draws the same
+        assert python_rng.random() == compiled_rng.random()
+
+
+@pytest.mark.parametrize("name", compiled_loop_optimizers())
+def test_compiled_loop_gives_the_python_loop_result_on_a_sphere(name):
+    optimizer = get_optimizer(name)
+    bounds = Bounds(-np.ones(6), 2 * np.ones(6))
+    objective = CompiledSphere(np.full(6, 0.3))
+    for seed, budget in enumerate([None, Budget(max_evaluations=500)]):
+        python = optimizer.minimize(
+            PlainCallable(objective), bounds, np.random.default_rng(seed), budget
+        )
+        compiled = optimizer.minimize(objective, bounds, np.random.default_rng(seed), budget)
+        assert same_result(python, compiled), (name, budget)
+
+
+def test_a_deadline_solves_through_python():
+    optimizer = get_optimizer("modified-bso")
+    problem = random_problem(np.random.default_rng(5), PAPER)
+    budget = Budget(max_iterations=5, deadline_s=60.0)
+    result = optimizer.minimize(problem, problem.bounds, np.random.default_rng(0), budget)
+    assert not math.isnan(result.info["objective_time_s"])
