@@ -43,18 +43,33 @@ import numpy as np
 from numba import njit
 
 from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
-from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
+from formation_bench.optimizers.base import (
+    Bounds,
+    Budget,
+    EvaluationCounter,
+    OptimizeResult,
+    PopulationOptimizer,
+)
 from formation_bench.optimizers.bso_ops import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.chaos import ChaoticMap, step_inplace
+from formation_bench.optimizers.compiled import (
+    NFEV,
+    CompiledObjective,
+    evaluate_leading,
+    remaining,
+)
 from formation_bench.optimizers.original_bso_kernels import ShiConfig, ShiSettings, shi_step
 from formation_bench.optimizers.population import (
+    ITERATION_LIMIT_NONE,
     RandomAhead,
+    compiled_initial_population,
     evaluate_prefix,
     greedy_select,
     initial_population,
     iteration_randoms,
     no_randoms,
     progress,
+    run_compiled_blocks,
 )
 from formation_bench.optimizers.registry import register
 
@@ -247,6 +262,58 @@ def cls_iteration(
     return x, f, out, improved
 
 
+@njit(cache=True)
+def cls_block(
+    address: int,
+    data: np.ndarray,
+    counts: np.ndarray,
+    best: np.ndarray,
+    x: np.ndarray,
+    f: np.ndarray,
+    candidates: np.ndarray,
+    costs: np.ndarray,
+    uniforms: np.ndarray,
+    normals: np.ndarray,
+    nit: int,
+    first_iteration: int,
+    iteration_limit: int,
+    shi_packed: tuple,
+    local_packed: tuple,
+    history_nfev: np.ndarray,
+    history_fun: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int, int]:
+    """Iterations ``nit + 1``, ... of a compiled solve, one per row of the random block.
+
+    Each is :meth:`ChaoticLocalSearchBSO.step` (bound handling other than RESAMPLE, which draws
+    per iteration) with the objective called through ``address``/``data``; the block stops
+    early at the iteration limit or when no evaluation is left. Returns ``(x, f, candidates,
+    costs, iterations done, random replacements, local improvements)``; the history arrays get
+    one entry per iteration done.
+    """
+    s = ShiSettings(*shi_packed)
+    done = 0
+    replacements = 0
+    improvements = 0
+    row = nit + 1 - first_iteration
+    while nit < iteration_limit and row < uniforms.shape[0] and remaining(counts) > 0:
+        nit += 1
+        u = uniforms[row]
+        # the local points' resample uniforms are not read without RESAMPLE
+        x, f, candidates, improved = cls_iteration(
+            x, f, candidates, costs, u, normals[row], x, nit, shi_packed, local_packed
+        )
+        # one objective call for the ideas and the local points (ideas first under a short budget)
+        costs = evaluate_leading(address, data, candidates, candidates.shape[0] - 1, counts, best)
+        if u[s.n_clusters] < s.p_replace:
+            replacements += 1
+        improvements += improved
+        history_nfev[done] = counts[NFEV]
+        history_fun[done] = best[0]
+        done += 1
+        row += 1
+    return x, f, candidates, costs, done, replacements, improvements
+
+
 @dataclass(frozen=True)
 class ChaoticLocalSearchBSO(LocalSearchConfig, ShiConfig, PopulationOptimizer[LocalSearchState]):
     """Shi's BSO step plus a chaotic local search around the best idea each iteration.
@@ -323,6 +390,49 @@ class ChaoticLocalSearchBSO(LocalSearchConfig, ShiConfig, PopulationOptimizer[Lo
         return LocalSearchState(
             x, f, candidates, costs, state.settings, state.local, state.t_max, randoms,
             state.replacements + replaced, state.improvements + improved,
+        )  # fmt: skip
+
+    def has_compiled_loop(self) -> bool:
+        # RESAMPLE draws the local points' uniforms at every iteration, between the blocks
+        return self.bound_handling is not BoundHandling.RESAMPLE
+
+    def minimize_compiled(
+        self,
+        objective: CompiledObjective,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        budget: Budget,
+        x0: np.ndarray | None,
+    ) -> OptimizeResult:
+        t_max = self.planned_iterations(budget)
+        x, f, start = compiled_initial_population(
+            objective, bounds, rng, self.population_size, x0, budget.max_evaluations
+        )
+        n, d = x.shape
+        shi_packed = self.shi_settings(bounds, t_max)
+        local_packed = pack_settings(LocalSettings, self)
+        iteration_limit = (
+            budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
+        )
+        carry = [x, f, rng.random((1, d)), np.empty(0), 0, 0]
+
+        def run_block(
+            nit: int, randoms: RandomAhead, history_nfev: np.ndarray, history_fun: np.ndarray
+        ) -> int:
+            x, f, candidates, costs, replacements, improvements = carry
+            x, f, candidates, costs, done, replaced, improved = cls_block(
+                objective.address, objective.data, start.counts, start.best, x, f, candidates,
+                costs, randoms.uniforms, randoms.normals, nit, randoms.first_iteration,
+                iteration_limit, shi_packed, local_packed, history_nfev, history_fun,
+            )  # fmt: skip
+            carry[:] = [
+                x, f, candidates, costs, replacements + replaced, improvements + improved
+            ]  # fmt: skip
+            return done
+
+        return run_compiled_blocks(
+            run_block, start, rng, budget, t_max, self.uniforms_per_step(n, d), (n, d),
+            lambda: {"random_replacements": carry[4], "local_search_improvements": carry[5]},
         )  # fmt: skip
 
 

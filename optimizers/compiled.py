@@ -95,8 +95,18 @@ def compiled_of(objective: object) -> CompiledObjective | None:
 def _call_c_cost(typingctx, address, x, rows, data, out):  # type: ignore[no-untyped-def]
     """Call the C cost at ``address`` on the first ``rows`` rows of ``x``, writing ``out``.
 
-    The arrays are arguments (not raw pointers) so that they stay alive for the call.
+    The arrays are arguments (not raw pointers) so that they stay alive for the call; ``x``
+    and ``data`` must be typed C-contiguous (any other layout does not compile), since the C
+    function reads them as flat memory.
     """
+    if not (
+        isinstance(x, types.Array)
+        and x.ndim == 2
+        and x.layout == "C"
+        and isinstance(data, types.Array)
+        and data.layout == "C"
+    ):
+        return None
     sig = types.void(address, x, rows, data, out)
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
@@ -189,7 +199,15 @@ def evaluate_prefix(
 ) -> np.ndarray:
     """As :func:`formation_bench.optimizers.population.evaluate_prefix`: the rows the budget
     allows evaluated, the rest ``+inf``."""
-    n = points.shape[0]
+    return evaluate_leading(address, data, points, points.shape[0], counts, best)
+
+
+@njit(cache=True)
+def evaluate_leading(
+    address: int, data: np.ndarray, points: np.ndarray, n: int, counts: np.ndarray,
+    best: np.ndarray,
+) -> np.ndarray:  # fmt: skip
+    """:func:`evaluate_prefix` of the first ``n`` rows of ``points`` (without slicing them)."""
     allowed = min(n, remaining(counts))
     if allowed >= n:
         return evaluate(address, data, points, n, counts, best)

@@ -29,6 +29,7 @@ from numba import njit
 from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
 from formation_bench.optimizers.base import Bounds
 from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
+from formation_bench.optimizers.compiled import NFEV, evaluate, remaining
 
 PARTNER_UNIFORMS = 3
 """Uniforms per member that pick its partners (rand/1 needs three, current-to-best/1 two)."""
@@ -233,3 +234,45 @@ def de_generation(
         uniforms=uniforms,
     )
     return x, f, new_trials
+
+
+@njit(cache=True)
+def de_block(
+    address: int,
+    data: np.ndarray,
+    counts: np.ndarray,
+    best: np.ndarray,
+    x: np.ndarray,
+    f: np.ndarray,
+    trials: np.ndarray,
+    trial_costs: np.ndarray,
+    uniforms: np.ndarray,
+    nit: int,
+    first_iteration: int,
+    iteration_limit: int,
+    settings: tuple,
+    history_nfev: np.ndarray,
+    history_fun: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Generations ``nit + 1``, ... of a compiled solve, one per row of ``uniforms``.
+
+    Each is :meth:`DifferentialEvolution.step` with the objective called through
+    ``address``/``data`` (see :mod:`~formation_bench.optimizers.compiled`); the block stops
+    early at the iteration limit or when no evaluation is left. Returns ``(x, f, trials,
+    trial_costs, generations done)``; the history arrays get one entry per generation done.
+    """
+    done = 0
+    row = nit + 1 - first_iteration
+    while nit < iteration_limit and row < uniforms.shape[0] and remaining(counts) > 0:
+        nit += 1
+        x, f, trials = de_generation(x, f, trials, trial_costs, uniforms[row], settings)
+        # a generation the budget cuts short evaluates its first trials; only those compete
+        allowed = min(trials.shape[0], remaining(counts))
+        if allowed < trials.shape[0]:
+            trials = trials[:allowed].copy()
+        trial_costs = evaluate(address, data, trials, allowed, counts, best)
+        history_nfev[done] = counts[NFEV]
+        history_fun[done] = best[0]
+        done += 1
+        row += 1
+    return x, f, trials, trial_costs, done

@@ -42,13 +42,29 @@ from typing import NamedTuple
 
 import numpy as np
 
-from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
-from formation_bench.optimizers.de_ops import DEConfig, DEStrategy, de_generation, select_trials
+from formation_bench.optimizers.base import (
+    Bounds,
+    Budget,
+    EvaluationCounter,
+    OptimizeResult,
+    PopulationOptimizer,
+)
+from formation_bench.optimizers.compiled import CompiledObjective
+from formation_bench.optimizers.de_ops import (
+    DEConfig,
+    DEStrategy,
+    de_block,
+    de_generation,
+    select_trials,
+)
 from formation_bench.optimizers.population import (
+    ITERATION_LIMIT_NONE,
     RandomAhead,
+    compiled_initial_population,
     initial_population,
     iteration_randoms,
     no_randoms,
+    run_compiled_blocks,
 )
 from formation_bench.optimizers.registry import register
 
@@ -132,6 +148,43 @@ class DifferentialEvolution(DEConfig, PopulationOptimizer[DEState]):
             trials = trials[:allowed]
         costs = counter(trials)
         return DEState(x, f, trials, costs, state.settings, state.t_max, randoms)
+
+    def has_compiled_loop(self) -> bool:
+        return True
+
+    def minimize_compiled(
+        self,
+        objective: CompiledObjective,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        budget: Budget,
+        x0: np.ndarray | None,
+    ) -> OptimizeResult:
+        t_max = self.planned_iterations(budget)
+        x, f, start = compiled_initial_population(
+            objective, bounds, rng, self.population_size, x0, budget.max_evaluations
+        )
+        n, d = x.shape
+        settings = self.de_settings(bounds)
+        iteration_limit = (
+            budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
+        )
+        carry = [x, f, np.empty((0, d)), np.empty(0)]
+
+        def run_block(
+            nit: int, randoms: RandomAhead, history_nfev: np.ndarray, history_fun: np.ndarray
+        ) -> int:
+            x, f, trials, trial_costs, done = de_block(
+                objective.address, objective.data, start.counts, start.best, *carry,
+                randoms.uniforms, nit, randoms.first_iteration, iteration_limit, settings,
+                history_nfev, history_fun,
+            )  # fmt: skip
+            carry[:] = [x, f, trials, trial_costs]
+            return done
+
+        return run_compiled_blocks(
+            run_block, start, rng, budget, t_max, self.uniforms_per_step(n, d), (0,), dict
+        )
 
 
 register(

@@ -55,15 +55,25 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
-from formation_bench.optimizers.original_bso_kernels import ShiConfig, shi_ideas
+from formation_bench.optimizers.base import (
+    Bounds,
+    Budget,
+    EvaluationCounter,
+    OptimizeResult,
+    PopulationOptimizer,
+)
+from formation_bench.optimizers.compiled import CompiledObjective
+from formation_bench.optimizers.original_bso_kernels import ShiConfig, shi_block, shi_ideas
 from formation_bench.optimizers.population import (
+    ITERATION_LIMIT_NONE,
     RandomAhead,
+    compiled_initial_population,
     evaluate_prefix,
     greedy_select,
     initial_population,
     iteration_randoms,
     no_randoms,
+    run_compiled_blocks,
 )
 from formation_bench.optimizers.registry import register
 
@@ -159,6 +169,45 @@ class OriginalBSO(ShiConfig, PopulationOptimizer[BSOState]):
         return BSOState(
             x, f, ideas, costs, settings, state.t_max, randoms, state.replacements + replaced
         )
+
+    def has_compiled_loop(self) -> bool:
+        return True
+
+    def minimize_compiled(
+        self,
+        objective: CompiledObjective,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        budget: Budget,
+        x0: np.ndarray | None,
+    ) -> OptimizeResult:
+        t_max = self.planned_iterations(budget)
+        x, f, start = compiled_initial_population(
+            objective, bounds, rng, self.population_size, x0, budget.max_evaluations
+        )
+        n, d = x.shape
+        settings = self.shi_settings(bounds, t_max)
+        iteration_limit = (
+            budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
+        )
+        carry = [x, f, np.empty((0, d)), np.empty(0), 0]
+
+        def run_block(
+            nit: int, randoms: RandomAhead, history_nfev: np.ndarray, history_fun: np.ndarray
+        ) -> int:
+            x, f, ideas, idea_costs, replacements = carry
+            x, f, ideas, idea_costs, done, replaced = shi_block(
+                objective.address, objective.data, start.counts, start.best, x, f, ideas,
+                idea_costs, randoms.uniforms, randoms.normals, nit, randoms.first_iteration,
+                iteration_limit, settings, history_nfev, history_fun,
+            )  # fmt: skip
+            carry[:] = [x, f, ideas, idea_costs, replacements + replaced]
+            return done
+
+        return run_compiled_blocks(
+            run_block, start, rng, budget, t_max, self.uniforms_per_step(n, d), (n, d),
+            lambda: {"random_replacements": carry[4]},
+        )  # fmt: skip
 
 
 register(

@@ -10,7 +10,6 @@ replacement and the new ideas are fused. The chaotic-local-search BSO
 arrays and inputs are never modified.
 """
 
-
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -30,6 +29,7 @@ from formation_bench.optimizers.bso_ops import (
     pick_index,
 )
 from formation_bench.optimizers.clustering import DEFAULT_MAX_ITER
+from formation_bench.optimizers.compiled import NFEV, evaluate_prefix, remaining
 from formation_bench.optimizers.population import greedy_select, step_scale
 
 PER_SOLVE = ("t_max", "scale", "lower", "upper")
@@ -208,3 +208,47 @@ def shi_ideas(
     """
     x, f, _ = greedy_select(x, f, new_ideas, new_costs)
     return x, f, shi_step(x, f, u, normals, iteration, ShiSettings(*packed))
+
+
+@njit(cache=True)
+def shi_block(
+    address: int,
+    data: np.ndarray,
+    counts: np.ndarray,
+    best: np.ndarray,
+    x: np.ndarray,
+    f: np.ndarray,
+    ideas: np.ndarray,
+    idea_costs: np.ndarray,
+    uniforms: np.ndarray,
+    normals: np.ndarray,
+    nit: int,
+    first_iteration: int,
+    iteration_limit: int,
+    packed: tuple,
+    history_nfev: np.ndarray,
+    history_fun: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
+    """Iterations ``nit + 1``, ... of a compiled solve, one per row of the random block.
+
+    Each is :meth:`OriginalBSO.step` with the objective called through ``address``/``data``
+    (see :mod:`~formation_bench.optimizers.compiled`); the block stops early at the iteration
+    limit or when no evaluation is left. Returns ``(x, f, ideas, idea_costs, iterations done,
+    random replacements)``; the history arrays get one entry per iteration done.
+    """
+    s = ShiSettings(*packed)
+    done = 0
+    replacements = 0
+    row = nit + 1 - first_iteration
+    while nit < iteration_limit and row < uniforms.shape[0] and remaining(counts) > 0:
+        nit += 1
+        u = uniforms[row]
+        x, f, ideas = shi_ideas(x, f, ideas, idea_costs, u, normals[row], nit, packed)
+        idea_costs = evaluate_prefix(address, data, ideas, counts, best)
+        if u[s.n_clusters] < s.p_replace:
+            replacements += 1
+        history_nfev[done] = counts[NFEV]
+        history_fun[done] = best[0]
+        done += 1
+        row += 1
+    return x, f, ideas, idea_costs, done, replacements

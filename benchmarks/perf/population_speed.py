@@ -10,7 +10,10 @@ start:
   optimiser's own work, the evaluation counter, Python): this thread's CPU
   time, which other processes on the machine do not inflate; for each problem
   the fastest of ``--repeats`` identical solves (same seed), then the median
-  over the problems;
+  over the problems. Once through the Python loop (the objective without its
+  compiled handle) and, for the optimisers that have one, through the compiled
+  loop, whose objective time is replayed
+  (:mod:`formation_bench.benchmarks.perf.replay`);
 - the time per evaluation, ``solve time / nfev``;
 - the same for mealpy's ``OriginalBSO`` (Shi's parameters, one point per
   objective call) on the same problems in the same run, and the ratio.
@@ -23,6 +26,7 @@ the machine quiet for comparable numbers (``--json FILE`` keeps the figures).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import platform
 import time
@@ -34,9 +38,10 @@ import numpy as np
 
 from formation_bench.benchmarks.instants import RecordedInstant, record_instants
 from formation_bench.benchmarks.perf.bbob import mealpy_original_bso, population_optimizers
+from formation_bench.benchmarks.perf.replay import replayed_objective_seconds, solve_batches
 from formation_bench.benchmarks.runner import warm_up_kernels
 from formation_bench.mpc.scenario import get_scenario
-from formation_bench.optimizers import get_optimizer
+from formation_bench.optimizers import PopulationOptimizer, get_optimizer
 
 
 def paper_instants(steps: Sequence[int] = (5, 60, 150)) -> list[RecordedInstant]:
@@ -60,52 +65,90 @@ class CpuTimedObjective:
         return costs
 
 
+def _solve(optimizer: Any, objective: Any, inst: RecordedInstant, seed: int) -> Any:
+    return optimizer.minimize(
+        objective, inst.problem.bounds, np.random.default_rng(seed), None, inst.warm_start
+    )
+
+
+def _fastest_cpu(solve: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:
+    """``(CPU s, wall s, result)`` of the fastest of ``repeats`` identical solves."""
+    runs = []
+    for _ in range(repeats):
+        cpu_start, wall_start = time.thread_time(), time.perf_counter()
+        result = solve()
+        runs.append((time.thread_time() - cpu_start, time.perf_counter() - wall_start, result))
+    return min(runs, key=lambda r: r[0])
+
+
 def time_optimizer(name: str, instants: list[RecordedInstant], repeats: int) -> dict[str, Any]:
-    """CPU and wall time of ``name`` per solve, and the part spent in the objective.
+    """CPU time of ``name`` per solve through Python and compiled, and the objective's part.
 
     Times are this thread's CPU time (``time.thread_time``), which does not
     advance while other processes hold the cores, so the split is stable on a
-    shared machine; the objective's part counts only the time inside the
-    problem itself. ``counter_outside_share`` is the wall-clock split of
-    ``formation_bench.benchmarks.perf.speed`` instead: the evaluation counter's objective time
-    (which includes the call into the objective) over the solve's wall time.
-    Every repeat of a problem uses the same seed and does the same work; per
-    problem the fastest repeat counts, then the median over the problems.
+    shared machine. Every repeat of a problem uses the same seed and does the
+    same work; per problem the fastest repeat counts, then the median over the
+    problems.
+
+    - The Python loop: the objective is wrapped so that it has no compiled
+      handle, and its part is the CPU time inside the problem's call.
+    - The compiled loop (optimisers that have one): the problem itself, and the
+      objective's part replayed (:mod:`formation_bench.benchmarks.perf.replay`).
     """
     optimizer = get_optimizer(name)
+    compiled = isinstance(optimizer, PopulationOptimizer) and optimizer.has_compiled_loop()
     first = instants[0]
-    optimizer.minimize(
-        first.problem, first.problem.bounds, np.random.default_rng(0), None, first.warm_start
-    )
-    solve, objective, wall, counter_share, nfev = [], [], [], [], []
+    for objective in (first.problem, CpuTimedObjective(first.problem)):
+        optimizer.minimize(
+            objective, first.problem.bounds, np.random.default_rng(0), None, first.warm_start
+        )
+    rows: dict[str, list[float]] = {
+        k: [] for k in ("python", "python_objective", "compiled", "compiled_objective", "wall")
+    }
+    nfev = []
     for k, inst in enumerate(instants):
-        runs = []
-        for _ in range(repeats):
-            timed = CpuTimedObjective(inst.problem)
-            cpu_start, wall_start = time.thread_time(), time.perf_counter()
-            result = optimizer.minimize(
-                timed, inst.problem.bounds, np.random.default_rng(k), None, inst.warm_start
-            )
-            cpu = time.thread_time() - cpu_start
-            wall_s = time.perf_counter() - wall_start
-            runs.append((cpu, timed.cpu_s, wall_s, result.info["objective_time_s"]))
-        solve.append(min(r[0] for r in runs))
-        objective.append(min(r[1] for r in runs))
-        fastest = min(runs, key=lambda r: r[2])
-        wall.append(fastest[2])
-        counter_share.append(1.0 - fastest[3] / fastest[2])
+        bounds, x0 = inst.problem.bounds, inst.warm_start
+        timed = CpuTimedObjective(inst.problem)
+        python_solve = functools.partial(_solve, optimizer, timed, inst, k)
+        cpu, wall, result = _fastest_cpu(python_solve, repeats)
+        timed.cpu_s = 0.0
+        python_solve()  # the objective's CPU time of one solve, read from the wrapper
+        rows["python"].append(cpu)
+        rows["python_objective"].append(timed.cpu_s)
         nfev.append(result.nfev)
-    solve_s, objective_s = np.array(solve), np.array(objective)
-    return {
+        if compiled:
+            cpu, wall, _ = _fastest_cpu(
+                functools.partial(_solve, optimizer, inst.problem, inst, k), repeats
+            )
+            batches = solve_batches(
+                optimizer, inst.problem, bounds, np.random.default_rng(k), None, x0
+            )
+            rows["compiled"].append(cpu)
+            rows["compiled_objective"].append(
+                replayed_objective_seconds(inst.problem.compiled, batches, repeats)
+            )
+        rows["wall"].append(wall)
+    figures = {k: np.array(v) for k, v in rows.items()}
+    row: dict[str, Any] = {
         "optimizer": name,
         "nfev": int(np.median(nfev)),
-        "solve_s": float(np.median(solve_s)),
-        "objective_s": float(np.median(objective_s)),
-        "outside_share": float(np.median(1.0 - objective_s / solve_s)),
-        "per_evaluation_s": float(np.median(solve_s / np.array(nfev))),
-        "wall_solve_s": float(np.median(wall)),
-        "counter_outside_share": float(np.median(counter_share)),
+        "python_solve_s": float(np.median(figures["python"])),
+        "python_outside_share": float(
+            np.median(1.0 - figures["python_objective"] / figures["python"])
+        ),
+        "wall_solve_s": float(np.median(figures["wall"])),
     }
+    fastest = figures["python"]
+    if compiled:
+        fastest = figures["compiled"]
+        row["compiled_solve_s"] = float(np.median(fastest))
+        row["compiled_outside_share"] = float(
+            np.median(1.0 - figures["compiled_objective"] / fastest)
+        )
+        row["compiled_speedup"] = float(np.median(figures["python"] / fastest))
+    row["solve_s"] = float(np.median(fastest))
+    row["per_evaluation_s"] = float(np.median(fastest / np.array(nfev)))
+    return row
 
 
 def time_mealpy(
@@ -162,24 +205,31 @@ def measure(
 def format_results(results: dict[str, Any]) -> str:
     """Markdown table of :func:`measure`'s figures (CPU times; wall time for reference)."""
     lines = [
-        "| optimiser | nfev | solve, CPU (ms) | cost evaluations, CPU (ms) | outside evaluations "
-        "| µs per evaluation | mealpy / this, per evaluation | solve, wall (ms) "
-        "| outside, counter's wall clock |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| optimiser | nfev | solve through Python, CPU (ms) | outside evaluations "
+        "| compiled solve, CPU (ms) | outside evaluations | compiled speed-up "
+        "| µs per evaluation | mealpy / this, per evaluation | solve, wall (ms) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for row in results["rows"]:
         ratio = f"{row['mealpy_ratio']:.0f}x" if "mealpy_ratio" in row else "-"
+        if "compiled_solve_s" in row:
+            share = 100 * row["compiled_outside_share"]
+            compiled = (
+                f"{1e3 * row['compiled_solve_s']:.2f} | {share:.0f} % "
+                f"| {row['compiled_speedup']:.2f}x"
+            )
+        else:
+            compiled = "- | - | -"
         lines.append(
-            f"| {row['optimizer']} | {row['nfev']} | {1e3 * row['solve_s']:.2f} "
-            f"| {1e3 * row['objective_s']:.2f} | {100 * row['outside_share']:.0f} % "
-            f"| {1e6 * row['per_evaluation_s']:.2f} | {ratio} | {1e3 * row['wall_solve_s']:.2f} "
-            f"| {100 * row['counter_outside_share']:.0f} % |"
+            f"| {row['optimizer']} | {row['nfev']} | {1e3 * row['python_solve_s']:.2f} "
+            f"| {100 * row['python_outside_share']:.0f} % | {compiled} "
+            f"| {1e6 * row['per_evaluation_s']:.2f} | {ratio} | {1e3 * row['wall_solve_s']:.2f} |"
         )
     if "mealpy" in results:
         m = results["mealpy"]
         lines.append(
             f"| {m['optimizer']} (one point per call) | {m['nfev']} | {1e3 * m['solve_s']:.1f} "
-            f"| - | - | {1e6 * m['per_evaluation_s']:.1f} | 1x | - | - |"
+            f"| - | - | - | - | {1e6 * m['per_evaluation_s']:.1f} | 1x | - |"
         )
     return "\n".join(lines)
 
