@@ -183,7 +183,9 @@ def ideas_from_clusters(
     return x, f, ideas
 
 
-@njit(cache=True)
+# inline: the compiled solve loop (modified_bso_block) is its usual caller, and a run that
+# solves only through that loop then never builds this kernel on its own
+@njit(cache=True, inline="always")
 def modified_bso_iteration(
     x: np.ndarray,
     f: np.ndarray,
