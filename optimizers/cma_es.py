@@ -9,7 +9,12 @@ updates (active: the worst steps get negative weights, as in the tutorial's
 defaults). The eigendecomposition of C is refreshed lazily, after
 ``0.5 lambda / (n (c_1 + c_mu))`` evaluations, as in Hansen's pure-Python
 reference implementation. The update rules are in :mod:`.cma_ops`; one
-compiled call per generation does all of a generation's own work.
+compiled call per generation does all of a generation's own work. With an
+objective that offers a compiled handle (see
+:mod:`~formation_bench.optimizers.compiled`) and no deadline, whole blocks of
+generations run in one compiled call (:func:`.cma_block`); Python draws the
+random numbers and restarts the runs, at the moments the Python loop does, so
+both give the same solve to the bit.
 
 **Coordinates.** The search runs in the box normalised to [0, 1]^n, so the
 initial covariance is the identity there and ``sigma0`` is a fraction of
