@@ -9,7 +9,12 @@ updates (active: the worst steps get negative weights, as in the tutorial's
 defaults). The eigendecomposition of C is refreshed lazily, after
 ``0.5 lambda / (n (c_1 + c_mu))`` evaluations, as in Hansen's pure-Python
 reference implementation. The update rules are in :mod:`.cma_ops`; one
-compiled call per generation does all of a generation's own work.
+compiled call per generation does all of a generation's own work. With an
+objective that offers a compiled handle (see
+:mod:`~formation_bench.optimizers.compiled`) and no deadline, whole blocks of
+generations run in one compiled call (:func:`.cma_block`); Python draws the
+random numbers and restarts the runs, at the moments the Python loop does, so
+both give the same solve to the bit.
 
 **Coordinates.** The search runs in the box normalised to [0, 1]^n, so the
 initial covariance is the identity there and ``sigma0`` is a fraction of
@@ -75,19 +80,39 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from formation_bench.fields import setting, validate_fields
-from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
+from formation_bench.optimizers.base import (
+    Bounds,
+    Budget,
+    EvaluationCounter,
+    OptimizeResult,
+    PopulationOptimizer,
+)
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.cma_ops import (
     RUN_EVALUATIONS,
     RUNNING,
     SIGMA,
+    STOP,
     STOP_NAMES,
+    cma_block,
     cma_generation,
     default_population_size,
     new_run,
     run_template,
 )
-from formation_bench.optimizers.population import ROWS_AHEAD, evaluate_prefix
+from formation_bench.optimizers.compiled import (
+    HAS_BEST,
+    NFEV,
+    CompiledObjective,
+    new_tally,
+    remaining,
+)
+from formation_bench.optimizers.compiled import evaluate_prefix as compiled_evaluate_prefix
+from formation_bench.optimizers.population import (
+    ITERATION_LIMIT_NONE,
+    ROWS_AHEAD,
+    evaluate_prefix,
+)
 from formation_bench.optimizers.registry import register
 
 MAX_DOUBLINGS = 9
@@ -256,6 +281,10 @@ class CMAES(PopulationOptimizer[CMAState]):
         """The first run, centred on ``x0`` (or a uniform point), which is evaluated."""
         start = bounds.sample(rng, 1) if x0 is None else x0[None].copy()
         evaluate_prefix(counter, start)
+        return self.first_run(bounds, start, max_iterations)
+
+    def first_run(self, bounds: Bounds, start: np.ndarray, max_iterations: int) -> CMAState:
+        """The first run of a solve, centred on the evaluated ``start`` (one row)."""
         default_lambda = default_population_size(bounds.dim)
         plan = RunPlan(self.population_size or default_lambda, self.sigma0, False, math.inf)
         mean = (start[0] - bounds.lower) / bounds.width
@@ -273,14 +302,14 @@ class CMAES(PopulationOptimizer[CMAState]):
         run, costs, normals, uniforms, first_iteration, plan, campaign = state
         row = iteration - first_iteration
         if row >= normals.shape[0]:
-            state, row = self.draw(state, rng, counter, iteration), 0
+            state, row = self.draw(state, rng, counter.remaining, iteration), 0
             normals, uniforms, first_iteration = state.normals, state.uniforms, iteration
         run = cma_generation(run, costs, normals, uniforms, row)
         lam = plan.population_size
         stop = run.item(lam, 0)  # the core's first entry: STOP
         if stop != RUNNING:
             state = self.restart(state, run, bounds, rng, STOP_NAMES[int(stop)])
-            state = self.draw(state, rng, counter, iteration)
+            state = self.draw(state, rng, counter.remaining, iteration)
             run, _, normals, uniforms, first_iteration, plan, campaign = state
             run = cma_generation(run, state.costs, normals, uniforms, 0)
             lam = plan.population_size
@@ -288,6 +317,77 @@ class CMAES(PopulationOptimizer[CMAState]):
         # the usual case, a whole generation within the budget, without evaluate_prefix's call
         costs = counter(points) if counter.remaining >= lam else evaluate_prefix(counter, points)
         return CMAState(run, costs, normals, uniforms, first_iteration, plan, campaign)
+
+    # --- the compiled solve loop -----------------------------------------------------------------
+
+    def has_compiled_loop(self) -> bool:
+        return True
+
+    def minimize_compiled(
+        self,
+        objective: CompiledObjective,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        budget: Budget,
+        x0: np.ndarray | None,
+    ) -> OptimizeResult:
+        """The solve of :meth:`minimize` with its generations in :func:`.cma_block` calls.
+
+        Python draws the random numbers and does the restarts, at the moments ``step``
+        does them (a block's normals when the last are used up; a restart's draws when a
+        run stops, then the new run's normals), so both loops make the same Generator
+        calls in the same order and give the same result.
+        """
+        counts, best = new_tally(bounds.dim, budget.max_evaluations)
+        start = bounds.sample(rng, 1) if x0 is None else x0[None].copy()
+        compiled_evaluate_prefix(objective.address, objective.data, start, counts, best)
+        state = self.first_run(bounds, start, self.planned_iterations(budget))
+        history_nfev = [int(counts[NFEV])]
+        history_fun = [float(best[0])]
+        iteration_limit = (
+            budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
+        )
+        message = "iteration budget reached"
+        nit = 0
+        while nit < iteration_limit:
+            if remaining(counts) <= 0:
+                message = "evaluation budget reached"
+                break
+            if nit + 1 - state.first_iteration >= state.normals.shape[0]:
+                state = self.draw(state, rng, int(remaining(counts)), nit + 1)
+            rows = state.normals.shape[0]
+            block_nfev = np.empty(rows, dtype=np.int64)
+            block_fun = np.empty(rows)
+            run, costs, done, stopped = cma_block(
+                objective.address, objective.data, counts, best, state.run, state.costs,
+                state.normals, state.uniforms, nit, state.first_iteration, iteration_limit,
+                block_nfev, block_fun,
+            )  # fmt: skip
+            history_nfev.extend(block_nfev[:done].tolist())
+            history_fun.extend(block_fun[:done].tolist())
+            nit += done
+            state = state._replace(run=run, costs=costs)
+            if stopped:
+                # the new run's first generation only samples (no costs to learn from), so it
+                # cannot stop: the next block call does iteration nit + 1 with it
+                why = STOP_NAMES[int(core_value(run, state.plan.population_size, STOP))]
+                state = self.restart(state, run, bounds, rng, why)
+                state = self.draw(state, rng, int(remaining(counts)), nit + 1)
+        else:
+            if remaining(counts) <= 0:
+                message = "evaluation budget reached"
+        assert counts[HAS_BEST] == 1
+        return OptimizeResult(
+            x=best[1:].copy(),
+            fun=float(best[0]),
+            nfev=int(counts[NFEV]),
+            nit=nit,
+            success=True,
+            message=message,
+            history_nfev=np.asarray(history_nfev, dtype=np.int64),
+            history_fun=np.asarray(history_fun),
+            info={"objective_time_s": math.nan, **self.result_info(state)},
+        )
 
     # --- runs and restarts -----------------------------------------------------------------------
 
@@ -305,16 +405,16 @@ class CMAES(PopulationOptimizer[CMAState]):
         return CMAState(run, np.empty(0), nothing, nothing, 1, plan, campaign)
 
     def draw(
-        self, state: CMAState, rng: np.random.Generator, counter: EvaluationCounter, iteration: int
+        self, state: CMAState, rng: np.random.Generator, left_evaluations: int, iteration: int
     ) -> CMAState:
         """Random numbers for the next generations from ``iteration`` on, in one call per kind.
 
-        As far ahead as the budget reaches (at most
+        As far ahead as the ``left_evaluations`` of the budget reach (at most
         :data:`~formation_bench.optimizers.population.ROWS_AHEAD` generations):
         resample uniforms first (if used), then normals.
         """
         lam, n = state.plan.population_size, state.run.shape[1]
-        left = min(state.campaign.t_max - iteration + 1, -(-counter.remaining // lam))
+        left = min(state.campaign.t_max - iteration + 1, -(-left_evaluations // lam))
         rows = min(max(left, 1), ROWS_AHEAD)
         resample = self.bound_handling is BoundHandling.RESAMPLE
         uniforms = rng.random((rows, lam, n)) if resample else None

@@ -10,7 +10,9 @@ paper problem mixes accelerations in +-7 with turn rates in +-0.25).
 Like the other ``*_ops`` modules, every random number comes in as an array
 and inputs are never modified; one call of :func:`cma_generation` does a
 whole generation's own work: the update from the last generation's costs,
-then the next samples.
+then the next samples. :func:`cma_block` runs a block of generations with a
+compiled objective (see :mod:`~formation_bench.optimizers.compiled`), the
+evaluations included, for the compiled solve loop.
 
 **One array per run.** At lambda = n = 10 the arithmetic of a generation
 takes about 2 µs, while every array passed into or out of a kernel costs
@@ -42,6 +44,7 @@ import numpy as np
 from numba import njit
 
 from formation_bench.optimizers.bound_handling import apply_bounds_inplace
+from formation_bench.optimizers.compiled import NFEV, evaluate_prefix, remaining
 
 # --- the core: scalars first, then the arrays laid out by layout() ------------------------------
 STOP = 0
@@ -397,6 +400,50 @@ def cma_generation(
             return out
     sample(core, where, out[:lam], normals[row], uniforms[row], n, lam)
     return out
+
+
+@njit(cache=True)
+def cma_block(
+    address: int,
+    data: np.ndarray,
+    counts: np.ndarray,
+    best: np.ndarray,
+    run: np.ndarray,
+    costs: np.ndarray,
+    normals: np.ndarray,
+    uniforms: np.ndarray,
+    nit: int,
+    first_iteration: int,
+    iteration_limit: int,
+    history_nfev: np.ndarray,
+    history_fun: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """Generations ``nit + 1``, ... of a compiled solve, one per block of ``normals`` left.
+
+    Each is :func:`cma_generation` with the points evaluated through ``address``/``data``
+    (see :mod:`~formation_bench.optimizers.compiled`), as ``CMAES.step`` does without a
+    restart; block ``k`` of ``normals`` and ``uniforms`` belongs to iteration
+    ``first_iteration + k``. The loop stops at the iteration limit, when no evaluation is
+    left, at the end of the blocks, or when the run meets a stop criterion: a restart draws
+    from the Generator, so its caller does it and calls again for the new run's first
+    generation. Returns ``(run, costs, iterations done, stopped)``; a stopped ``run`` is the
+    stopped generation's result (nothing sampled), its iteration not done. The history arrays
+    get one entry per iteration done.
+    """
+    lam = normals.shape[1]
+    done = 0
+    row = nit + 1 - first_iteration
+    while nit < iteration_limit and row < normals.shape[0] and remaining(counts) > 0:
+        run = cma_generation(run, costs, normals, uniforms, row)
+        if run[lam, 0] != RUNNING:  # the core's first entry: STOP
+            return run, costs, done, True
+        nit += 1
+        costs = evaluate_prefix(address, data, run[:lam], counts, best)
+        history_nfev[done] = counts[NFEV]
+        history_fun[done] = best[0]
+        done += 1
+        row += 1
+    return run, costs, done, False
 
 
 @njit(cache=True)

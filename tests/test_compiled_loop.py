@@ -17,7 +17,9 @@ import pytest
 from test_cost_and_problem import random_problem
 
 from formation_bench.mpc.scenario import PAPER
-from formation_bench.optimizers import Bounds, Budget, PopulationOptimizer, get_optimizer
+from formation_bench.optimizers import CMAES, Bounds, Budget, PopulationOptimizer, get_optimizer
+from formation_bench.optimizers.bound_handling import BoundHandling
+from formation_bench.optimizers.cma_es import Restarts
 from formation_bench.optimizers.compiled import (
     COST_SIGNATURE,
     HAS_BEST,
@@ -191,6 +193,43 @@ def test_compiled_loop_gives_the_python_loop_result_on_a_sphere(name):
         )
         compiled = optimizer.minimize(objective, bounds, np.random.default_rng(seed), budget)
         assert same_result(python, compiled), (name, budget)
+
+
+@pytest.mark.parametrize("restarts", list(Restarts), ids=lambda r: r.name.lower())
+@pytest.mark.parametrize(
+    ("bound_handling", "lamarckian"),
+    [(BoundHandling.REFLECT, False), (BoundHandling.RESAMPLE, True)],
+    ids=["reflect", "resample-lamarckian"],
+)
+def test_cma_es_restarts_in_the_compiled_loop_give_the_python_loop_result(
+    restarts, bound_handling, lamarckian
+):
+    # a loose TolFun stops runs on the sphere after some dozens of generations, so a solve
+    # restarts several times, at varying rows of the drawn blocks; the optimum near the faces
+    # makes the bound handling (and RESAMPLE's uniforms) matter
+    optimizer = CMAES(
+        restarts=restarts, tol_fun=1e-2, bound_handling=bound_handling, lamarckian=lamarckian
+    )
+    bounds = Bounds(-5 * np.ones(6), 5 * np.ones(6))
+    objective = CompiledSphere(np.linspace(-4.9, 4.9, 6))
+    budgets = [
+        Budget(max_evaluations=4000),
+        Budget(max_evaluations=3000, max_iterations=170),
+        Budget(max_iterations=250),
+    ]
+    stops = []
+    for seed, budget in enumerate(budgets):
+        x0 = np.zeros(6) if seed % 2 == 0 else None
+        python_rng, compiled_rng = np.random.default_rng(seed), np.random.default_rng(seed)
+        python = optimizer.minimize(PlainCallable(objective), bounds, python_rng, budget, x0)
+        compiled = optimizer.minimize(objective, bounds, compiled_rng, budget, x0)
+        assert math.isnan(compiled.info["objective_time_s"])
+        assert same_result(python, compiled), budget
+        assert python_rng.random() == compiled_rng.random()
+        stops += compiled.info["stops"]
+    assert len(stops) >= 3  # the restarts this test is about did happen
+    if restarts is Restarts.BIPOP and bound_handling is BoundHandling.REFLECT:
+        assert "runbudget" in stops  # a small run stopped by its allowance
 
 
 def test_a_deadline_solves_through_python():
