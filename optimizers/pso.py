@@ -27,6 +27,10 @@ by ``bound_handling`` (clip, reflect, or random re-initialisation of the
 offending coordinate); the velocity of a repaired coordinate becomes the step
 actually taken. Personal bests are updated only on strict improvement, so
 NaN/inf costs (mapped to +inf by the evaluation counter) never become a best.
+
+A compiled objective without a deadline is solved block by block in
+:func:`~formation_bench.optimizers.pso_ops.pso_block`, with the result and the draws of the
+Python loop (:meth:`PSO.minimize_compiled`).
 """
 
 from __future__ import annotations
@@ -158,7 +162,7 @@ class PSO(PSOConfig, PopulationOptimizer[PSOState]):
         coefficients, inertia_z = state.coefficients, state.inertia_z
         # one draw: r1 and r2 (unless chaotic) | resample values (if used)
         n_uniform = 0 if self.chaotic_coefficients else 2 * n * d
-        u = rng.random(n_uniform + (n * d if resample else 0))
+        u = rng.random(self.uniforms_per_step(n, d))
         if self.chaotic_coefficients:
             coefficients = next_iterates(int(self.coefficient_map), coefficients)
             r = coefficients
