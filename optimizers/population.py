@@ -252,3 +252,50 @@ def run_compiled_blocks(
         history_fun=np.asarray(history_fun),
         info={"objective_time_s": math.nan, **info()},
     )
+
+
+DrawingBlockRunner = Callable[[int, int, np.ndarray, np.ndarray, np.ndarray], int]
+"""``(nit, rows, uniforms, history_nfev, history_fun) -> iterations done``: runs the ``rows``
+iterations ``nit + 1``, ... on ``uniforms``, the numbers their own draws would give one after the
+other, writing one history entry each."""
+
+
+def run_compiled_draws(
+    run_block: DrawingBlockRunner,
+    start: CompiledStart,
+    rng: np.random.Generator,
+    budget: Budget,
+    t_max: int,
+    batch: int,
+    uniforms_per_iteration: Callable[[int], int],
+    info: Callable[[], dict],
+) -> OptimizeResult:
+    """:func:`run_compiled_blocks` for an optimiser whose iterations draw their own uniforms.
+
+    It fits a Python step that makes one ``rng.random`` call of ``uniforms_per_iteration(m)``
+    numbers and evaluates ``m = min(batch, evaluations left)`` rows. The iterations such a loop
+    runs are then known before they start (each one takes ``min(batch, left)`` of the ``left``
+    evaluations, so ``ceil(left / batch)`` of them exhaust the budget), and so are the sizes of
+    their draws. A Generator fills an array one number after the other from one stream, so one
+    ``rng.random`` call of their total gives the numbers of the separate calls, in order, and
+    leaves ``rng`` where they leave it; an iteration that is not run draws nothing. The blocks
+    are those of :func:`run_compiled_blocks`, told to draw no numbers of its own (an empty draw
+    leaves a Generator unchanged), so the loop, its limits and its message are that one's.
+    """
+    counts = start.counts
+    iteration_limit = (
+        budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
+    )
+
+    def run_drawn_block(
+        nit: int, randoms: RandomAhead, history_nfev: np.ndarray, history_fun: np.ndarray
+    ) -> int:
+        left = int(remaining(counts))
+        rows = min(randoms.uniforms.shape[0], iteration_limit - nit, -(-left // batch))
+        total = sum(uniforms_per_iteration(min(batch, left - j * batch)) for j in range(rows))
+        done = run_block(nit, rows, rng.random(total), history_nfev, history_fun)
+        if done != rows:
+            raise RuntimeError(f"a compiled block ran {done} of its {rows} planned iterations")
+        return done
+
+    return run_compiled_blocks(run_drawn_block, start, rng, budget, t_max, 0, (0,), info)

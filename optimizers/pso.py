@@ -27,8 +27,11 @@ by ``bound_handling`` (clip, reflect, or random re-initialisation of the
 offending coordinate); the velocity of a repaired coordinate becomes the step
 actually taken. Personal bests are updated only on strict improvement, so
 NaN/inf costs (mapped to +inf by the evaluation counter) never become a best.
-"""
 
+A compiled objective without a deadline is solved block by block in
+:func:`~formation_bench.optimizers.pso_ops.pso_block`, with the result and the draws of the
+Python loop (:meth:`PSO.minimize_compiled`).
+"""
 
 from __future__ import annotations
 
@@ -37,16 +40,29 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from formation_bench.fields import setting, validate_fields
-from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
+from formation_bench.optimizers.base import (
+    Bounds,
+    Budget,
+    EvaluationCounter,
+    OptimizeResult,
+    PopulationOptimizer,
+)
 from formation_bench.optimizers.bound_handling import BoundHandling
-from formation_bench.optimizers.chaos import ChaoticMap, apply_map
-from formation_bench.optimizers.population import evaluate_and_select, initial_population
+from formation_bench.optimizers.chaos import apply_map
+from formation_bench.optimizers.compiled import CompiledObjective
+from formation_bench.optimizers.population import (
+    compiled_initial_population,
+    evaluate_and_select,
+    initial_population,
+    run_compiled_draws,
+)
 from formation_bench.optimizers.pso_ops import (
+    PSOConfig,
     chaotic_inertia,
     linear_inertia,
     move_swarm,
     next_iterates,
+    pso_block,
 )
 from formation_bench.optimizers.registry import register
 
@@ -81,45 +97,9 @@ class PSOState(NamedTuple):
 
 
 @dataclass(frozen=True)
-class PSO(PopulationOptimizer[PSOState]):
-    """Global-best PSO; see the module docstring for the variants and their sources."""
-
-    population_size: int = setting(30, low=2, doc="N, particles")
-    max_iterations: int = setting(
-        40, low=0,
-        doc="Iterations when the caller gives no budget; the default budget is N (T + 1)",
-    )  # fmt: skip
-    inertia_start: float = setting(
-        0.9, low=0.0, high=2.0, doc="Inertia weight at the first iteration"
-    )
-    inertia_end: float = setting(
-        0.4, low=0.0, high=2.0,
-        doc="Inertia weight at the last planned iteration; equal to start: constant",
-    )  # fmt: skip
-    c1: float = setting(
-        2.0, low=0.0, high=5.0, doc="Cognitive acceleration (towards the personal best)"
-    )
-    c2: float = setting(2.0, low=0.0, high=5.0, doc="Social acceleration (towards the global best)")
-    velocity_clamp: float = setting(
-        0.2, low=0.0, high=2.0, low_open=True, doc="v_max as a fraction of each coordinate's range"
-    )
-    bound_handling: BoundHandling = setting(
-        BoundHandling.CLIP,
-        doc="How positions outside the box are brought back: clip, reflect or resample",
-    )
-    chaotic_coefficients: bool = setting(
-        False, doc="Use chaotic sequences of coefficient_map for r1 and r2 instead of uniforms"
-    )
-    coefficient_map: ChaoticMap = setting(ChaoticMap.LOGISTIC, doc="Chaotic map of r1 and r2")
-    chaotic_inertia: bool = setting(
-        False, doc="Use Feng et al.'s chaotic inertia weight instead of the linear schedule"
-    )
-    inertia_map: ChaoticMap = setting(
-        ChaoticMap.LOGISTIC, doc="Chaotic map of the inertia sequence"
-    )
-
-    def __post_init__(self) -> None:
-        validate_fields(self)
+class PSO(PSOConfig, PopulationOptimizer[PSOState]):
+    """Global-best PSO; see the module docstring for the variants and their sources, and
+    :class:`~formation_bench.optimizers.pso_ops.PSOConfig` for the settings."""
 
     @property
     def default_budget(self) -> Budget:
@@ -142,14 +122,7 @@ class PSO(PopulationOptimizer[PSOState]):
         """N uniform particles (particle 0 at ``x0`` if given) at rest, evaluated in one batch."""
         n, d = self.population_size, bounds.dim
         x, f = initial_population(counter, bounds, rng, n, x0)
-        coefficients = np.zeros((0, n, d))
-        inertia_z = 0.5
-        if self.chaotic_coefficients or self.chaotic_inertia:
-            # drawn only when used, so that plain PSO runs do not depend on them
-            seeds = rng.random(2 * n * d + 1)
-            inertia_z = float(seeds[-1])
-            if self.chaotic_coefficients:
-                coefficients = seeds[:-1].reshape(2, n, d)
+        coefficients, inertia_z = self.chaotic_seeds(rng, n, d)
         return PSOState(
             x=x,
             v=np.zeros((n, d)),
@@ -162,6 +135,19 @@ class PSO(PopulationOptimizer[PSOState]):
             coefficients=coefficients,
             inertia_z=inertia_z,
         )
+
+    def chaotic_seeds(self, rng: np.random.Generator, n: int, d: int) -> tuple[np.ndarray, float]:
+        """``(coefficients, inertia_z)`` at the start: the chaotic r1, r2 (shape (2, N, D), empty
+        unless chaotic coefficients) and the inertia sequence's first value (0.5 unless chaotic)."""
+        coefficients = np.zeros((0, n, d))
+        inertia_z = 0.5
+        if self.chaotic_coefficients or self.chaotic_inertia:
+            # drawn only when used, so that plain PSO runs do not depend on them
+            seeds = rng.random(2 * n * d + 1)
+            inertia_z = float(seeds[-1])
+            if self.chaotic_coefficients:
+                coefficients = seeds[:-1].reshape(2, n, d)
+        return coefficients, inertia_z
 
     def step(
         self,
@@ -176,7 +162,7 @@ class PSO(PopulationOptimizer[PSOState]):
         coefficients, inertia_z = state.coefficients, state.inertia_z
         # one draw: r1 and r2 (unless chaotic) | resample values (if used)
         n_uniform = 0 if self.chaotic_coefficients else 2 * n * d
-        u = rng.random(n_uniform + (n * d if resample else 0))
+        u = rng.random(self.uniforms_per_step(n, d))
         if self.chaotic_coefficients:
             coefficients = next_iterates(int(self.coefficient_map), coefficients)
             r = coefficients
@@ -219,6 +205,44 @@ class PSO(PopulationOptimizer[PSOState]):
             coefficients=coefficients,
             inertia_z=inertia_z,
         )
+
+    def has_compiled_loop(self) -> bool:
+        return True
+
+    def minimize_compiled(
+        self,
+        objective: CompiledObjective,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        budget: Budget,
+        x0: np.ndarray | None,
+    ) -> OptimizeResult:
+        t_max = self.planned_iterations(budget)
+        n, d = self.population_size, bounds.dim
+        x, f, start = compiled_initial_population(
+            objective, bounds, rng, n, x0, budget.max_evaluations
+        )
+        coefficients, inertia_z = self.chaotic_seeds(rng, n, d)
+        packed = self.pso_settings(bounds, t_max)
+        per_step = self.uniforms_per_step(n, d)
+        # x, v, personal bests and their costs, chaotic coefficients, inertia_z
+        carry: list[Any] = [x, np.zeros((n, d)), x, f, coefficients, inertia_z]
+
+        def run_block(
+            nit: int, rows: int, uniforms: np.ndarray, history_nfev: np.ndarray,
+            history_fun: np.ndarray,
+        ) -> int:  # fmt: skip
+            x, v, best_x, best_f, coefficients, inertia_z, done = pso_block(
+                objective.address, objective.data, start.counts, start.best, *carry,
+                uniforms.reshape(rows, per_step), nit, packed, history_nfev, history_fun,
+            )  # fmt: skip
+            carry[:] = [x, v, best_x, best_f, coefficients, inertia_z]
+            return done
+
+        return run_compiled_draws(
+            run_block, start, rng, budget, t_max, n, lambda evaluated: per_step,
+            lambda: {"final_inertia_z": carry[5]},
+        )  # fmt: skip
 
 
 register(

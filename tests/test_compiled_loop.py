@@ -17,8 +17,17 @@ import pytest
 from test_cost_and_problem import random_problem
 
 from formation_bench.mpc.scenario import PAPER
-from formation_bench.optimizers import CMAES, Bounds, Budget, PopulationOptimizer, get_optimizer
+from formation_bench.optimizers import (
+    CMAES,
+    PSO,
+    Bounds,
+    Budget,
+    PopulationOptimizer,
+    RandomSearch,
+    get_optimizer,
+)
 from formation_bench.optimizers.bound_handling import BoundHandling
+from formation_bench.optimizers.chaos import ChaoticMap
 from formation_bench.optimizers.cma_es import Restarts
 from formation_bench.optimizers.compiled import (
     COST_SIGNATURE,
@@ -29,6 +38,11 @@ from formation_bench.optimizers.compiled import (
     evaluate,
     evaluate_prefix,
     new_tally,
+)
+from formation_bench.optimizers.population import (
+    ROWS_AHEAD,
+    CompiledStart,
+    run_compiled_draws,
 )
 from formation_bench.optimizers.registry import optimizer_names
 
@@ -138,6 +152,13 @@ def test_the_paper_optimiser_has_a_compiled_loop():
     assert "modified-bso" in compiled_loop_optimizers()
 
 
+def test_pso_and_random_search_have_a_compiled_loop():
+    names = set(compiled_loop_optimizers())
+    pso_names = {n for n in optimizer_names() if isinstance(get_optimizer(n), PSO)}
+    assert {"pso", "pso-constriction", "chaotic-pso"} <= pso_names <= names
+    assert "random-search" in names
+
+
 BUDGETS = [
     None,
     Budget(max_evaluations=1200),
@@ -238,3 +259,119 @@ def test_a_deadline_solves_through_python():
     budget = Budget(max_iterations=5, deadline_s=60.0)
     result = optimizer.minimize(problem, problem.bounds, np.random.default_rng(0), budget)
     assert not math.isnan(result.info["objective_time_s"])
+
+
+def same_state(a, b) -> bool:
+    """Equal bit-generator states (nested dicts of numbers and arrays)."""
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(same_state(a[k], b[k]) for k in a)
+    return bool(np.array_equal(a, b))
+
+
+BIT_GENERATORS = [np.random.PCG64, np.random.PCG64DXSM, np.random.Philox, np.random.SFC64,
+                  np.random.MT19937]  # fmt: skip
+
+
+@pytest.mark.parametrize("bit_generator", BIT_GENERATORS, ids=lambda g: g.__name__)
+def test_one_uniform_draw_is_the_separate_draws_one_after_the_other(bit_generator):
+    """What :func:`run_compiled_draws` relies on: ``random(a)``, ``random(b)``, ... give the
+    numbers of one ``random(a + b + ...)`` in order and leave the Generator in the same state;
+    an empty draw (of any shape, uniform or normal) leaves it unchanged."""
+    sizes = [7, 0, 60, 1, 33, 120]
+    separate, joined = (np.random.Generator(bit_generator(42)) for _ in range(2))
+    parts = [separate.random(k) for k in sizes]
+    parts.append(separate.random((3, 5)).reshape(-1))
+    whole = joined.random(sum(sizes) + 15)
+    np.testing.assert_array_equal(np.concatenate(parts), whole)
+    assert same_state(separate.bit_generator.state, joined.bit_generator.state)
+    state = joined.bit_generator.state
+    assert joined.random((4, 0)).shape == (4, 0)
+    assert joined.standard_normal((4, 0)).shape == (4, 0)
+    assert same_state(joined.bit_generator.state, state)
+    assert separate.random() == joined.random()
+
+
+# configurations the registered variants miss: every bound handling (RESAMPLE draws per
+# iteration too), chaotic coefficients with and without those draws (an iteration may draw
+# nothing), other maps, a population that does not divide the budget
+EXTRA_CONFIGURATIONS = [
+    PSO(bound_handling=BoundHandling.RESAMPLE),
+    PSO(bound_handling=BoundHandling.REFLECT, velocity_clamp=1.5, c1=3.0),
+    PSO(chaotic_coefficients=True, bound_handling=BoundHandling.RESAMPLE, velocity_clamp=1.0),
+    PSO(
+        chaotic_coefficients=True,
+        coefficient_map=ChaoticMap.TENT,
+        chaotic_inertia=True,
+        inertia_map=ChaoticMap.SINE,
+        population_size=7,
+    ),
+    RandomSearch(population_size=7),
+    RandomSearch(population_size=1),
+]
+LONG_BUDGETS = [
+    Budget(max_evaluations=2 * 30 * ROWS_AHEAD + 101),  # blocks of 64, then the rest
+    Budget(max_iterations=ROWS_AHEAD + 5),
+    Budget(max_evaluations=1000, max_iterations=ROWS_AHEAD + 2),
+    Budget(max_iterations=0),
+    Budget(max_evaluations=30),
+]
+
+
+@pytest.mark.parametrize("optimizer", EXTRA_CONFIGURATIONS, ids=repr)
+def test_other_configurations_give_the_python_loop_result(optimizer):
+    rng = np.random.default_rng(23)
+    problem = random_problem(rng, PAPER)
+    warm_start = problem.bounds.sample(rng, 1)[0]
+    for k, budget in enumerate(BUDGETS + LONG_BUDGETS):
+        x0 = warm_start if k % 2 == 1 else None
+        python_rng, compiled_rng = np.random.default_rng(k), np.random.default_rng(k)
+        python = optimizer.minimize(PlainCallable(problem), problem.bounds, python_rng, budget, x0)
+        compiled = optimizer.minimize(problem, problem.bounds, compiled_rng, budget, x0)
+        assert math.isnan(compiled.info["objective_time_s"])
+        assert same_result(python, compiled), (optimizer, budget)
+        assert python_rng.random() == compiled_rng.random()
+
+
+@pytest.mark.parametrize("name", ["pso", "chaotic-pso", "random-search"])
+def test_long_solves_give_the_python_loop_result(name):
+    optimizer = get_optimizer(name)
+    problem = random_problem(np.random.default_rng(31), PAPER)
+    for k, budget in enumerate(LONG_BUDGETS):
+        python_rng, compiled_rng = np.random.default_rng(k), np.random.default_rng(k)
+        python = optimizer.minimize(PlainCallable(problem), problem.bounds, python_rng, budget)
+        compiled = optimizer.minimize(problem, problem.bounds, compiled_rng, budget)
+        assert same_result(python, compiled), (name, budget)
+        assert python_rng.random() == compiled_rng.random()
+
+
+def test_one_generator_through_consecutive_solves_stays_in_step():
+    """A UAV's Generator serves all its solves: each one must leave it where Python does."""
+    problem = random_problem(np.random.default_rng(2), PAPER)
+    budgets = [
+        Budget(max_evaluations=95),
+        None,
+        Budget(max_evaluations=31),
+        Budget(max_iterations=2),
+    ]
+    python_rng, compiled_rng = np.random.default_rng(8), np.random.default_rng(8)
+    for name in ["chaotic-pso", "random-search", "pso", "modified-bso"] * 2:
+        for budget in budgets:
+            optimizer = get_optimizer(name)
+            python = optimizer.minimize(PlainCallable(problem), problem.bounds, python_rng, budget)
+            compiled = optimizer.minimize(problem, problem.bounds, compiled_rng, budget)
+            assert same_result(python, compiled), (name, budget)
+    assert same_state(python_rng.bit_generator.state, compiled_rng.bit_generator.state)
+
+
+def test_a_block_that_runs_fewer_iterations_than_planned_is_an_error():
+    counts = np.array([0, 100, 1], dtype=np.int64)
+    start = CompiledStart(counts, np.zeros(3))
+
+    def lazy_block(nit, rows, uniforms, history_nfev, history_fun):
+        return rows - 1
+
+    with pytest.raises(RuntimeError, match="planned iterations"):
+        run_compiled_draws(
+            lazy_block, start, np.random.default_rng(0), Budget(max_iterations=5), 5, 10,
+            lambda evaluated: evaluated, dict,
+        )  # fmt: skip

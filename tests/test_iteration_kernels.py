@@ -27,6 +27,8 @@ from formation_bench.optimizers.original_bso_kernels import (
     shi_step,
 )
 from formation_bench.optimizers.population import ROWS_AHEAD, iteration_randoms, no_randoms
+from formation_bench.optimizers.pso_ops import PER_SOLVE as PSO_PER_SOLVE
+from formation_bench.optimizers.pso_ops import PSOConfig, PSOSettings, pso_block
 
 # (config, settings class, per-solve values, kernels reading it, the kernels' name for it)
 SETTINGS = [
@@ -120,6 +122,32 @@ def test_the_kernels_take_one_settings_tuple() -> None:
         "shi_packed",
         "local_packed",
     )
+
+
+def test_the_pso_block_reads_exactly_its_declared_settings() -> None:
+    declared = set(kernel_field_names(PSOConfig)) | set(PSO_PER_SOLVE)
+    assert declared == set(PSOSettings._fields)
+    assert attributes_read([pso_block], "s") == declared
+
+
+@pytest.mark.parametrize("name", ["pso", "pso-constriction", "chaotic-pso"])
+def test_packed_pso_settings_hold_each_field_under_its_own_name(name: str) -> None:
+    optimizer = get_optimizer(name)
+    box = Bounds(np.full(3, -1.0), np.full(3, 2.0))
+    settings = PSOSettings(*optimizer.pso_settings(box, 17))
+    for field in settings._fields:
+        value = getattr(settings, field)
+        if field == "t_max":
+            assert value == 17
+        elif field in ("lower", "upper"):
+            np.testing.assert_array_equal(value, getattr(box, field))
+            assert value.flags.writeable
+        elif field == "v_max":
+            np.testing.assert_array_equal(value, np.full(3, 3.0 * optimizer.velocity_clamp))
+        else:
+            assert value == kernel_value(getattr(optimizer, field))
+            assert type(value) is type(kernel_value(getattr(optimizer, field)))
+    assert pickle.loads(pickle.dumps(PSOSettings)) is PSOSettings
 
 
 BSO_NAMES = [n for n in OPTIMIZERS if type(OPTIMIZERS[n].optimizer).__name__.endswith("BSO")]
