@@ -40,7 +40,9 @@ from formation_bench.mpc.model import (
 )
 
 
-@nb.njit(cache=True)
+# inline: the closed loop calls it only through packed_batch_cost, which then holds the one
+# compiled copy a run builds
+@nb.njit(cache=True, inline="always")
 def batch_cost(
     decisions: np.ndarray,
     state: np.ndarray,

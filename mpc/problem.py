@@ -17,10 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from formation_bench.mpc.cost import (
-    batch_cost,
     block_map,
     compiled_cost,
     pack_problem,
+    packed_batch_cost,
     reference_cost,
 )
 from formation_bench.mpc.model import coast, rollout
@@ -142,28 +142,23 @@ class LocalProblem:
         decisions = np.ascontiguousarray(decisions, dtype=np.float64)
         if decisions.ndim != 2 or decisions.shape[1] != self.dim:
             raise ValueError(f"decisions must have shape (n, {self.dim}), got {decisions.shape}")
-        return batch_cost(
-            decisions,
-            self.state,
-            self.block_of_step,
-            self.scenario.period_s,
-            self.scenario.rk4_substeps,
-            self._distance_targets,
-            self._centre_target,
-            self.scenario.w_dst,
-            self._w_centre,
-        )
+        return packed_batch_cost(decisions, self.packed)
+
+    @functools.cached_property
+    def packed(self) -> np.ndarray:
+        """The problem as :func:`~formation_bench.mpc.cost.pack_problem` lays it out: what the
+        cost kernel reads, called from Python or through :attr:`compiled`."""
+        scenario = self.scenario
+        return pack_problem(
+            self.state, self.block_of_step, scenario.period_s, scenario.rk4_substeps,
+            self._distance_targets, self._centre_target, scenario.w_dst, self._w_centre,
+        )  # fmt: skip
 
     @functools.cached_property
     def compiled(self) -> CompiledObjective:
         """The same cost as a compiled objective, for optimisers with a compiled solve loop."""
-        scenario = self.scenario
         cost = compiled_cost()
-        data = pack_problem(
-            self.state, self.block_of_step, scenario.period_s, scenario.rk4_substeps,
-            self._distance_targets, self._centre_target, scenario.w_dst, self._w_centre,
-        )  # fmt: skip
-        return CompiledObjective(cost.address, data, cost)
+        return CompiledObjective(cost.address, self.packed, cost)
 
     def reference_cost(self, decision: np.ndarray) -> float:
         """Eq. (14) for one decision vector by the plain reference implementation."""
