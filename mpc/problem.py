@@ -154,6 +154,12 @@ class LocalProblem:
             self._distance_targets, self._centre_target, scenario.w_dst, self._w_centre,
         )  # fmt: skip
 
+    def __getstate__(self) -> dict:
+        # the compiled handle holds a C function, which does not pickle; it is rebuilt on use
+        state = dict(self.__dict__)
+        state.pop("compiled", None)
+        return state
+
     @functools.cached_property
     def compiled(self) -> CompiledObjective:
         """The same cost as a compiled objective, for optimisers with a compiled solve loop."""

@@ -10,6 +10,7 @@ on a hand-made compiled cost.
 from __future__ import annotations
 
 import math
+import pickle
 
 import numba as nb
 import numpy as np
@@ -108,6 +109,15 @@ def test_local_problem_handle_gives_the_problem_costs_to_the_bit():
         assert compiled_of(problem) is problem.compiled
         decisions = problem.bounds.sample(rng, 23)
         assert np.array_equal(problem.compiled(decisions), problem(decisions))
+
+
+def test_a_problem_with_its_handle_built_still_pickles():
+    problem = random_problem(np.random.default_rng(8), PAPER)
+    decisions = problem.bounds.sample(np.random.default_rng(9), 5)
+    before = problem.compiled(decisions)
+    copy = pickle.loads(pickle.dumps(problem))
+    assert np.array_equal(copy.compiled(decisions), before)
+    assert np.array_equal(copy(decisions), before)
 
 
 def test_handle_refuses_a_null_address_and_bad_data():
