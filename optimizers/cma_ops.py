@@ -15,7 +15,7 @@ compiled objective (see :mod:`~formation_bench.optimizers.compiled`), the
 evaluations included, for the compiled solve loop.
 
 **One array per run.** At lambda = n = 10 the arithmetic of a generation
-takes about 2 µs, while every array passed into or out of a kernel costs
+takes about 4 µs, while every array passed into or out of a kernel costs
 0.1-0.5 µs at the Python boundary. So a run's whole state (strategy
 parameters, mean, paths, C and its eigensystem, TolFun history, last steps)
 lives in one float array, the *core*, laid out by :func:`layout`, and a
@@ -30,8 +30,15 @@ compiled Householder tridiagonalisation and implicit QL iteration
 (:func:`symmetric_eigen`, the EISPACK ``tred2``/``tql2`` algorithm of
 Wilkinson & Reinsch's *Handbook for Automatic Computation*, vol. II, 1971;
 Hansen's C and Java CMA-ES decompose C the same way). At n = 10 it takes
-about 3 µs where numpy's LAPACK ``eigh`` takes about 7 µs, both timed in a
-compiled loop.
+about 3.5 µs where numpy's LAPACK ``eigh`` takes about 7 µs, both timed in a
+compiled loop; with C^(-1/2) a refresh takes about 4 µs, every second
+generation at lambda = n = 10, half of a generation's own work.
+
+**Step lengths.** The negative weights of the update are scaled by the
+squared Mahalanobis length ``||C^(-1/2) y||^2`` of their steps, which the
+sampling keeps: ``||z||^2`` for a sampled step (equal in exact arithmetic,
+since the next update's C^(-1/2) belongs to the B and D the step was sampled
+with), the capped length of a repaired Lamarckian step.
 """
 
 from __future__ import annotations
@@ -211,6 +218,8 @@ class Layout(NamedTuple):
     """Best cost of each recent generation, newest first, nan until filled."""
     steps: int
     """The last generation's steps, lambda x n."""
+    lengths: int
+    """Squared Mahalanobis lengths ``||C^(-1/2) y||^2`` of the last steps, lambda."""
     weights: int
     lower: int
     width: int
@@ -231,13 +240,14 @@ def layout(n: int, lam: int, history: int) -> Layout:
     inv_sqrt = eigenvectors + n * n
     hist = inv_sqrt + n * n
     steps = hist + history
-    weights = steps + lam * n
+    lengths = steps + lam * n
+    weights = lengths + lam
     lower = weights + lam
     width = lower + n
     upper = width + n
     return Layout(
-        mean, path_sigma, path_c, axes, cov, eigenvectors, inv_sqrt, hist, steps, weights, lower,
-        width, upper, upper + n,
+        mean, path_sigma, path_c, axes, cov, eigenvectors, inv_sqrt, hist, steps, lengths,
+        weights, lower, width, upper, upper + n,
     )  # fmt: skip
 
 
@@ -333,6 +343,8 @@ class RunView(NamedTuple):
     inv_sqrt: np.ndarray
     history: np.ndarray
     steps: np.ndarray
+    lengths: np.ndarray
+    """Squared Mahalanobis lengths of the steps, as the next update reads them."""
     generation: int
     run_evaluations: int
     stop: int
@@ -359,6 +371,7 @@ def read_run(state: np.ndarray, lam: int) -> RunView:
         inv_sqrt=part(where.inv_sqrt, (n, n)),
         history=part(where.history, (int(core[HISTORY]),)),
         steps=part(where.steps, (lam, n)),
+        lengths=part(where.lengths, (lam,)),
         generation=int(core[GENERATION]),
         run_evaluations=int(core[RUN_EVALUATIONS]),
         stop=int(core[STOP]),
@@ -390,12 +403,20 @@ class Scratch(NamedTuple):
 
 @njit(cache=True)
 def new_scratch(n: int, lam: int) -> Scratch:
-    """The :class:`Scratch` of a run of dimension ``n`` and population ``lam``."""
-    unit = np.zeros((2, n))
+    """The :class:`Scratch` of a run of dimension ``n`` and population ``lam``.
+
+    Views of one float array (and the int ranking): an allocation costs about as much as
+    the arithmetic of a small loop.
+    """
+    flat = np.empty(n + lam + n * n + 4 * n)
+    matrix = flat[n + lam : n + lam + n * n].reshape(n, n)
+    rest = n + lam + n * n
+    unit = flat[rest + 2 * n :].reshape(2, n)
+    unit[0] = 0.0
     unit[1] = 1.0
     return Scratch(
-        np.empty(lam, dtype=np.int64), np.empty(n), np.empty(lam),
-        np.empty((n, n)), np.empty(n), np.empty(n), unit,
+        np.empty(lam, dtype=np.int64), flat[:n], flat[n : n + lam], matrix,
+        flat[rest : rest + n], flat[rest + n : rest + 2 * n], unit,
     )  # fmt: skip
 
 
@@ -567,14 +588,15 @@ def update_distribution(
 
     # w° of the tutorial: a negative weight is scaled by n / ||C^(-1/2) y||^2, so that
     # a long unlucky step cannot remove more variance than a typical one
+    # (the squared lengths were kept by sample(): see there)
+    lengths = core[where.lengths : where.lengths + lam]
     scaled = scratch.scaled
     weight_sum = 0.0
     for r in range(lam):
         w = weights[r]
         weight_sum += w
         if w < 0.0:
-            length = mahalanobis(inv_sqrt, steps[order[r]])
-            w = w * n / max(length * length, 1e-300)
+            w = w * n / max(lengths[order[r]], 1e-300)
         scaled[r] = c_mu * w
     delta_h = (1.0 - h_sigma) * c_c * (2.0 - c_c)
     decay = 1.0 + c_1 * delta_h - c_1 - c_mu * weight_sum
@@ -750,6 +772,7 @@ def sample(
     rows = core[where.eigenvectors : where.eigenvectors + n * n].reshape(n, n)
     inv_sqrt = core[where.inv_sqrt : where.inv_sqrt + n * n].reshape(n, n)
     steps = core[where.steps : where.steps + lam * n].reshape(lam, n)
+    lengths = core[where.lengths : where.lengths + lam]
     lower = core[where.lower : where.lower + n]
     width = core[where.width : where.width + n]
     upper = core[where.upper : where.upper + n]
@@ -757,9 +780,16 @@ def sample(
     cap = core[CAP]
     lamarckian = core[LAMARCKIAN] != 0.0
 
+    # ||C^(-1/2) y|| = ||B D^(-1) B^T B D z|| = ||z||: the update's next C^(-1/2) is the one
+    # of this B and D (the eigensystem is refreshed only after an update), so a sampled
+    # step's Mahalanobis length is that of its normals, n operations instead of n^2
     for s in range(lam):
         y = steps[s]
         y[:] = 0.0
+        length2 = 0.0
+        for k in range(n):
+            length2 += normals[s, k] * normals[s, k]
+        lengths[s] = length2
         for k in range(n):
             a = axes[k] * normals[s, k]
             for i in range(n):
@@ -780,6 +810,8 @@ def sample(
                     if length > cap:
                         for j in range(n):
                             y[j] *= cap / length
+                        length = cap
+                    lengths[s] = length * length
                     break
     for s in range(lam):
         for i in range(n):
