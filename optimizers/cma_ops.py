@@ -15,7 +15,7 @@ compiled objective (see :mod:`~formation_bench.optimizers.compiled`), the
 evaluations included, for the compiled solve loop.
 
 **One array per run.** At lambda = n = 10 the arithmetic of a generation
-takes about 2 µs, while every array passed into or out of a kernel costs
+takes about 4 µs, while every array passed into or out of a kernel costs
 0.1-0.5 µs at the Python boundary. So a run's whole state (strategy
 parameters, mean, paths, C and its eigensystem, TolFun history, last steps)
 lives in one float array, the *core*, laid out by :func:`layout`, and a
@@ -30,8 +30,15 @@ compiled Householder tridiagonalisation and implicit QL iteration
 (:func:`symmetric_eigen`, the EISPACK ``tred2``/``tql2`` algorithm of
 Wilkinson & Reinsch's *Handbook for Automatic Computation*, vol. II, 1971;
 Hansen's C and Java CMA-ES decompose C the same way). At n = 10 it takes
-about 3 µs where numpy's LAPACK ``eigh`` takes about 7 µs, both timed in a
-compiled loop.
+about 3.5 µs where numpy's LAPACK ``eigh`` takes about 7 µs, both timed in a
+compiled loop; with C^(-1/2) a refresh takes about 4 µs, every second
+generation at lambda = n = 10, half of a generation's own work.
+
+**Step lengths.** The negative weights of the update are scaled by the
+squared Mahalanobis length ``||C^(-1/2) y||^2`` of their steps, which the
+sampling keeps: ``||z||^2`` for a sampled step (equal in exact arithmetic,
+since the next update's C^(-1/2) belongs to the B and D the step was sampled
+with), the capped length of a repaired Lamarckian step.
 """
 
 from __future__ import annotations
@@ -211,6 +218,8 @@ class Layout(NamedTuple):
     """Best cost of each recent generation, newest first, nan until filled."""
     steps: int
     """The last generation's steps, lambda x n."""
+    lengths: int
+    """Squared Mahalanobis lengths ``||C^(-1/2) y||^2`` of the last steps, lambda."""
     weights: int
     lower: int
     width: int
@@ -231,13 +240,14 @@ def layout(n: int, lam: int, history: int) -> Layout:
     inv_sqrt = eigenvectors + n * n
     hist = inv_sqrt + n * n
     steps = hist + history
-    weights = steps + lam * n
+    lengths = steps + lam * n
+    weights = lengths + lam
     lower = weights + lam
     width = lower + n
     upper = width + n
     return Layout(
-        mean, path_sigma, path_c, axes, cov, eigenvectors, inv_sqrt, hist, steps, weights, lower,
-        width, upper, upper + n,
+        mean, path_sigma, path_c, axes, cov, eigenvectors, inv_sqrt, hist, steps, lengths,
+        weights, lower, width, upper, upper + n,
     )  # fmt: skip
 
 
@@ -333,6 +343,8 @@ class RunView(NamedTuple):
     inv_sqrt: np.ndarray
     history: np.ndarray
     steps: np.ndarray
+    lengths: np.ndarray
+    """Squared Mahalanobis lengths of the steps, as the next update reads them."""
     generation: int
     run_evaluations: int
     stop: int
@@ -359,6 +371,7 @@ def read_run(state: np.ndarray, lam: int) -> RunView:
         inv_sqrt=part(where.inv_sqrt, (n, n)),
         history=part(where.history, (int(core[HISTORY]),)),
         steps=part(where.steps, (lam, n)),
+        lengths=part(where.lengths, (lam,)),
         generation=int(core[GENERATION]),
         run_evaluations=int(core[RUN_EVALUATIONS]),
         stop=int(core[STOP]),
@@ -366,6 +379,45 @@ def read_run(state: np.ndarray, lam: int) -> RunView:
 
 
 # --- the generation ------------------------------------------------------------------------------
+
+
+class Scratch(NamedTuple):
+    """Work arrays of a generation, allocated once per :func:`cma_block` call (or per
+    :func:`cma_generation` call), so that a generation allocates nothing."""
+
+    order: np.ndarray
+    """Ranking of the last costs, best first (lambda,)."""
+    vector: np.ndarray
+    """``<y>_w`` (n,)."""
+    scaled: np.ndarray
+    """c_mu times the (rescaled) weight of each rank (lambda,)."""
+    matrix: np.ndarray
+    """C / its largest diagonal entry, then the Householder transformation (n, n)."""
+    diagonal: np.ndarray
+    """Tridiagonal diagonal, then eigenvalues (n,)."""
+    off_diagonal: np.ndarray
+    """Tridiagonal off-diagonal (n,)."""
+    unit: np.ndarray
+    """Zeros and ones: the normalised box's lower and upper bounds (2, n)."""
+
+
+@njit(cache=True)
+def new_scratch(n: int, lam: int) -> Scratch:
+    """The :class:`Scratch` of a run of dimension ``n`` and population ``lam``.
+
+    Views of one float array (and the int ranking): an allocation costs about as much as
+    the arithmetic of a small loop.
+    """
+    flat = np.empty(n + lam + n * n + 4 * n)
+    matrix = flat[n + lam : n + lam + n * n].reshape(n, n)
+    rest = n + lam + n * n
+    unit = flat[rest + 2 * n :].reshape(2, n)
+    unit[0] = 0.0
+    unit[1] = 1.0
+    return Scratch(
+        np.empty(lam, dtype=np.int64), flat[:n], flat[n : n + lam], matrix,
+        flat[rest : rest + n], flat[rest + n : rest + 2 * n], unit,
+    )  # fmt: skip
 
 
 @njit(cache=True)
@@ -388,18 +440,37 @@ def cma_generation(
     out = state.copy()
     core = core_of(out, lam)
     where = layout(n, lam, int(core[HISTORY]))
+    advance(out, core, where, new_scratch(n, lam), costs, normals[row], uniforms[row])
+    return out
+
+
+@njit(cache=True)
+def advance(
+    run: np.ndarray,
+    core: np.ndarray,
+    where: Layout,
+    scratch: Scratch,
+    costs: np.ndarray,
+    normals: np.ndarray,
+    uniforms: np.ndarray,
+) -> None:
+    """:func:`cma_generation` in place: ``run`` becomes the next generation's result.
+
+    ``core`` is ``core_of(run, lam)`` and ``where`` its layout; ``normals`` and
+    ``uniforms`` are this generation's (lambda x n) blocks.
+    """
+    lam, n = normals.shape
     if costs.shape[0] > 0:
-        update_distribution(core, where, costs, n, lam)
+        update_distribution(core, where, costs, n, lam, scratch)
         core[RUN_EVALUATIONS] += lam
         condition = 1.0
         if core[RUN_EVALUATIONS] - core[EIGEN_EVALUATIONS] > core[EIGEN_GAP]:
-            condition = refresh_eigensystem(core, where, n)
+            condition = refresh_eigensystem(core, where, n, scratch)
             core[EIGEN_EVALUATIONS] = core[RUN_EVALUATIONS]
         core[STOP] = stop_code(core, where, costs, condition, n)
         if core[STOP] != RUNNING:
-            return out
-    sample(core, where, out[:lam], normals[row], uniforms[row], n, lam)
-    return out
+            return
+    sample(core, where, run[:lam], normals, uniforms, n, lam, scratch)
 
 
 @njit(cache=True)
@@ -428,14 +499,19 @@ def cma_block(
     from the Generator, so its caller does it and calls again for the new run's first
     generation. Returns ``(run, costs, iterations done, stopped)``; a stopped ``run`` is the
     stopped generation's result (nothing sampled), its iteration not done. The history arrays
-    get one entry per iteration done.
+    get one entry per iteration done. ``run`` is copied once and then advanced in place (the
+    caller's array is not modified).
     """
-    lam = normals.shape[1]
+    lam, n = normals.shape[1], run.shape[1]
+    run = run.copy()
+    core = core_of(run, lam)
+    where = layout(n, lam, int(core[HISTORY]))
+    scratch = new_scratch(n, lam)
     done = 0
     row = nit + 1 - first_iteration
     while nit < iteration_limit and row < normals.shape[0] and remaining(counts) > 0:
-        run = cma_generation(run, costs, normals, uniforms, row)
-        if run[lam, 0] != RUNNING:  # the core's first entry: STOP
+        advance(run, core, where, scratch, costs, normals[row], uniforms[row])
+        if core[STOP] != RUNNING:
             return run, costs, done, True
         nit += 1
         costs = evaluate_prefix(address, data, run[:lam], counts, best)
@@ -447,10 +523,10 @@ def cma_block(
 
 
 @njit(cache=True)
-def ranking(costs: np.ndarray) -> np.ndarray:
-    """Indices of ``costs`` from best to worst, ties in index order (insertion sort: small)."""
+def ranking(costs: np.ndarray, order: np.ndarray) -> None:
+    """Indices of ``costs`` from best to worst into ``order``, ties in index order
+    (insertion sort: small)."""
     m = costs.shape[0]
-    order = np.empty(m, dtype=np.int64)
     for k in range(m):
         v = costs[k]
         j = k
@@ -458,22 +534,21 @@ def ranking(costs: np.ndarray) -> np.ndarray:
             order[j] = order[j - 1]
             j -= 1
         order[j] = k
-    return order
 
 
 @njit(cache=True)
 def update_distribution(
-    core: np.ndarray, where: Layout, costs: np.ndarray, n: int, lam: int
+    core: np.ndarray, where: Layout, costs: np.ndarray, n: int, lam: int, scratch: Scratch
 ) -> None:
     """The tutorial's update (Fig. 6, c_m = 1) of mean, paths, sigma, C and the TolFun history.
 
-    Written into ``core`` (a fresh copy owned by :func:`cma_generation`).
-    ``<y>_w`` comes from the mu best steps; cumulative step-size adaptation
-    with ``C^(-1/2)`` of the last eigendecomposition; ``h_sigma`` stalls the
-    rank-one path after a long step; the rank-one and rank-mu updates of C,
-    a negative weight scaled by ``n / ||C^(-1/2) y||^2``.
+    Written into ``core``. ``<y>_w`` comes from the mu best steps; cumulative
+    step-size adaptation with ``C^(-1/2)`` of the last eigendecomposition;
+    ``h_sigma`` stalls the rank-one path after a long step; the rank-one and
+    rank-mu updates of C, a negative weight scaled by ``n / ||C^(-1/2) y||^2``.
     """
-    order = ranking(costs)
+    order = scratch.order
+    ranking(costs, order)
     steps = core[where.steps : where.steps + lam * n].reshape(lam, n)
     weights = core[where.weights : where.weights + lam]
     mean = core[where.mean : where.mean + n]
@@ -486,7 +561,9 @@ def update_distribution(
     mueff, c_sigma, d_sigma = core[MUEFF], core[C_SIGMA], core[D_SIGMA]
     c_c, c_1, c_mu, chi_n = core[C_C], core[C_1], core[C_MU], core[CHI_N]
 
-    y_w = np.zeros(n)
+    y_w = scratch.vector
+    for i in range(n):
+        y_w[i] = 0.0
     for r in range(mu):
         k = order[r]
         for i in range(n):
@@ -511,17 +588,15 @@ def update_distribution(
 
     # w° of the tutorial: a negative weight is scaled by n / ||C^(-1/2) y||^2, so that
     # a long unlucky step cannot remove more variance than a typical one
-    scaled = np.empty(lam)
-    ranked = np.empty((lam, n))
+    # (the squared lengths were kept by sample(): see there)
+    lengths = core[where.lengths : where.lengths + lam]
+    scaled = scratch.scaled
     weight_sum = 0.0
     for r in range(lam):
         w = weights[r]
         weight_sum += w
-        for i in range(n):
-            ranked[r, i] = steps[order[r], i]
         if w < 0.0:
-            length = mahalanobis(inv_sqrt, ranked[r])
-            w = w * n / max(length * length, 1e-300)
+            w = w * n / max(lengths[order[r]], 1e-300)
         scaled[r] = c_mu * w
     delta_h = (1.0 - h_sigma) * c_c * (2.0 - c_c)
     decay = 1.0 + c_1 * delta_h - c_1 - c_mu * weight_sum
@@ -529,7 +604,8 @@ def update_distribution(
         for j in range(i, n):
             value = decay * cov[i, j] + c_1 * pc[i] * pc[j]
             for r in range(lam):
-                value += scaled[r] * ranked[r, i] * ranked[r, j]
+                y = steps[order[r]]
+                value += scaled[r] * y[i] * y[j]
             cov[i, j] = value
             cov[j, i] = value
 
@@ -555,7 +631,7 @@ def mahalanobis(inv_sqrt: np.ndarray, y: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def refresh_eigensystem(core: np.ndarray, where: Layout, n: int) -> float:
+def refresh_eigensystem(core: np.ndarray, where: Layout, n: int, scratch: Scratch) -> float:
     """Eigendecompose C into the core's axes, eigenvectors and C^(-1/2); returns cond(C).
 
     C is scaled by its largest diagonal entry first, so that no square in the
@@ -574,7 +650,13 @@ def refresh_eigensystem(core: np.ndarray, where: Layout, n: int) -> float:
         for j in range(n):
             if not math.isfinite(cov[i, j]):
                 return math.inf
-    values, rows = symmetric_eigen(cov / scale)
+    matrix = scratch.matrix
+    for i in range(n):
+        for j in range(n):
+            matrix[i, j] = cov[i, j] / scale
+    values = scratch.diagonal
+    rows = core[where.eigenvectors : where.eigenvectors + n * n].reshape(n, n)
+    eigen_into(matrix, values, scratch.off_diagonal, rows)
     largest, smallest = -math.inf, math.inf
     for k in range(n):
         largest = max(largest, values[k])
@@ -584,7 +666,6 @@ def refresh_eigensystem(core: np.ndarray, where: Layout, n: int) -> float:
     axes = core[where.axes : where.axes + n]
     for k in range(n):
         axes[k] = math.sqrt(max(values[k], floor) * scale)
-    core[where.eigenvectors : where.eigenvectors + n * n] = rows.reshape(-1)
     inv_sqrt = core[where.inv_sqrt : where.inv_sqrt + n * n].reshape(n, n)
     for i in range(n):
         for j in range(n):
@@ -671,6 +752,7 @@ def sample(
     uniforms: np.ndarray,
     n: int,
     lam: int,
+    scratch: Scratch,
 ) -> None:
     """lambda samples ``m + sigma B (D * z)`` into ``points`` (box coordinates) and their steps.
 
@@ -690,6 +772,7 @@ def sample(
     rows = core[where.eigenvectors : where.eigenvectors + n * n].reshape(n, n)
     inv_sqrt = core[where.inv_sqrt : where.inv_sqrt + n * n].reshape(n, n)
     steps = core[where.steps : where.steps + lam * n].reshape(lam, n)
+    lengths = core[where.lengths : where.lengths + lam]
     lower = core[where.lower : where.lower + n]
     width = core[where.width : where.width + n]
     upper = core[where.upper : where.upper + n]
@@ -697,9 +780,16 @@ def sample(
     cap = core[CAP]
     lamarckian = core[LAMARCKIAN] != 0.0
 
+    # ||C^(-1/2) y|| = ||B D^(-1) B^T B D z|| = ||z||: the update's next C^(-1/2) is the one
+    # of this B and D (the eigensystem is refreshed only after an update), so a sampled
+    # step's Mahalanobis length is that of its normals, n operations instead of n^2
     for s in range(lam):
         y = steps[s]
         y[:] = 0.0
+        length2 = 0.0
+        for k in range(n):
+            length2 += normals[s, k] * normals[s, k]
+        lengths[s] = length2
         for k in range(n):
             a = axes[k] * normals[s, k]
             for i in range(n):
@@ -707,42 +797,53 @@ def sample(
         for i in range(n):
             points[s, i] = mean[i] + sigma * y[i]
     # repaired in place in the point rows, still in [0, 1] coordinates
-    unit = np.empty((2, n))
-    unit[0] = 0.0
-    unit[1] = 1.0
+    unit = scratch.unit
     apply_bounds_inplace(points, unit[0], unit[1], int(core[BOUND_MODE]), uniforms)
-    for s in range(lam):
-        y = steps[s]
-        for i in range(n):
-            if lamarckian and points[s, i] != mean[i] + sigma * y[i]:  # moved by the repair
-                for j in range(n):
-                    y[j] = (points[s, j] - mean[j]) / sigma
-                length = mahalanobis(inv_sqrt, y)
-                if length > cap:
+    if lamarckian:
+        for s in range(lam):
+            y = steps[s]
+            for i in range(n):
+                if points[s, i] != mean[i] + sigma * y[i]:  # moved by the repair
                     for j in range(n):
-                        y[j] *= cap / length
-                break
+                        y[j] = (points[s, j] - mean[j]) / sigma
+                    length = mahalanobis(inv_sqrt, y)
+                    if length > cap:
+                        for j in range(n):
+                            y[j] *= cap / length
+                        length = cap
+                    lengths[s] = length * length
+                    break
+    for s in range(lam):
         for i in range(n):
             points[s, i] = min(max(lower[i] + width[i] * points[s, i], lower[i]), upper[i])
+
+
+def symmetric_eigen(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(values, rows)``: eigenvalues of the symmetric ``a`` and its eigenvectors as rows.
+
+    :func:`eigen_into` on a copy of ``a``. Eigenvalues are not sorted;
+    ``rows[k]`` belongs to ``values[k]``. The caller scales ``a`` so that its
+    entries are of order one (the QL step squares them without the guard of
+    ``hypot``).
+    """
+    n = a.shape[0]
+    values, rows = np.empty(n), np.empty((n, n))
+    eigen_into(np.array(a, dtype=np.float64), values, np.empty(n), rows)
+    return values, rows
 
 
 # error_model="numpy": no zero check per division (the QL step divides only by values it
 # has shown to be nonzero), which makes the decomposition about a fifth faster
 @njit(cache=True, error_model="numpy")
-def symmetric_eigen(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(values, rows)``: eigenvalues of the symmetric ``a`` and its eigenvectors as rows.
+def eigen_into(v: np.ndarray, d: np.ndarray, e: np.ndarray, w: np.ndarray) -> None:
+    """Eigenvalues of the symmetric ``v`` (n x n, destroyed) into ``d``, eigenvectors as rows
+    into ``w``; ``e`` is a work array of length n.
 
     Householder reduction to tridiagonal form with the transformation
     accumulated (``tred2``), then the implicit QL iteration (``tql2``), as in
     Wilkinson & Reinsch's *Handbook* (1971, contributions II/2 and II/3).
-    Eigenvalues are not sorted; ``rows[k]`` belongs to ``values[k]``. The
-    caller scales ``a`` so that its entries are of order one (the QL step
-    squares them without the guard of ``hypot``).
     """
-    n = a.shape[0]
-    v = a.copy()
-    d = np.empty(n)
-    e = np.empty(n)
+    n = v.shape[0]
     for j in range(n):
         d[j] = v[n - 1, j]
     # Householder: row i is reduced using the part left of the diagonal
@@ -814,7 +915,9 @@ def symmetric_eigen(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         v[n - 1, j] = 0.0
     v[n - 1, n - 1] = 1.0
     # QL on the tridiagonal (d, e), rotating the rows of w (contiguous: the loop vectorises)
-    w = v.T.copy()
+    for i in range(n):
+        for j in range(n):
+            w[i, j] = v[j, i]
     for i in range(1, n):
         e[i - 1] = e[i]
     e[n - 1] = 0.0
@@ -874,4 +977,3 @@ def symmetric_eigen(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                     break
         d[m0] = d[m0] + f
         e[m0] = 0.0
-    return d, w

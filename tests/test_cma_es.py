@@ -54,6 +54,7 @@ def test_default_population_size_is_4_plus_floor_3_ln_n() -> None:
 @pytest.mark.parametrize(("n", "lam"), [(10, 10), (2, 6), (30, 14), (10, 41)])
 def test_parameters_agree_with_pycma(n: int, lam: int) -> None:
     import cma  # the dev extra has it: a missing reference fails, not skips
+
     es = cma.CMAEvolutionStrategy(n * [0.0], 1.0, {"popsize": lam, "verbose": -9})
     ours = cma_parameters(n, lam)
     np.testing.assert_allclose(ours.weights, np.asarray(es.sp.weights), rtol=1e-12)
@@ -256,6 +257,27 @@ def test_a_sample_outside_is_evaluated_repaired_and_learned_from_by_the_policy(
 # --- behaviour ----------------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("lamarckian", [False, True])
+def test_the_kept_step_lengths_are_their_mahalanobis_lengths(lamarckian: bool) -> None:
+    """The update's negative weights read ||C^(-1/2) y||^2 as sample() kept it (||z||^2 for a
+    sampled step, the capped length for a repaired one): it must equal the product with the
+    C^(-1/2) that the update uses, refreshed or not in between."""
+    lam = 10
+    state, costs = evolved_run(np.random.default_rng(5), 3, lamarckian=lamarckian)
+    for g in range(4):
+        # large normals, so that some samples leave the box and are repaired
+        normals = 4.0 * np.random.default_rng(10 + g).standard_normal((1, lam, D))
+        state = cma_generation(state, costs, normals, normals, 0)
+        costs = sphere(state[:lam])
+        view = read_run(state, lam)
+        expected = np.sum((view.steps @ view.inv_sqrt.T) ** 2, axis=1)
+        np.testing.assert_allclose(view.lengths, expected, rtol=1e-10)
+        repaired = ~np.isclose(view.lengths, np.sum(normals[0] ** 2, axis=1), rtol=1e-12)
+        assert repaired.any() == lamarckian
+        if lamarckian:
+            assert np.all(view.lengths[repaired] <= injection_cap(D) ** 2 * (1 + 1e-12))
+
+
 def test_the_mean_starts_at_the_warm_start() -> None:
     rec = Recorder()
     x0 = np.full(D, 4.0)
@@ -417,4 +439,3 @@ def test_registered_variants() -> None:
 def test_invalid_config_names_the_field(field: str, value: object) -> None:
     with pytest.raises(ValueError, match=rf"CMAES\.{field} must"):
         CMAES(**{field: value})
-

@@ -30,6 +30,7 @@ from formation_bench.optimizers import (
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.chaos import ChaoticMap
 from formation_bench.optimizers.cma_es import Restarts
+from formation_bench.optimizers.cma_ops import cma_block, cma_generation, new_run, run_template
 from formation_bench.optimizers.compiled import (
     COST_SIGNATURE,
     HAS_BEST,
@@ -385,3 +386,28 @@ def test_a_block_that_runs_fewer_iterations_than_planned_is_an_error():
             lazy_block, start, np.random.default_rng(0), Budget(max_iterations=5), 5, 10,
             lambda evaluated: evaluated, dict,
         )  # fmt: skip
+
+
+def test_cma_block_advances_a_copy_and_leaves_its_input_run_alone():
+    """The block advances one copy of the run in place; the caller's state is never changed."""
+    d, lam = 4, 6
+    bounds = Bounds(np.full(d, -2.0), np.full(d, 2.0))
+    template = run_template(d, lam, True, 1e-12, 1e-12, int(BoundHandling.REFLECT))
+    run = new_run(template, lam, np.full(d, 0.3), 0.2, bounds.lower, bounds.upper)
+    objective = sphere(np.linspace(-1.0, 1.0, d))
+    normals = np.random.default_rng(3).standard_normal((5, lam, d))
+    kept = run.copy()
+    counts, best = new_tally(d, None)
+    out, costs, done, stopped = cma_block(
+        objective.address, objective.data, counts, best, run, np.empty(0), normals, normals,
+        0, 1, 10, np.empty(5, dtype=np.int64), np.empty(5),
+    )  # fmt: skip
+    assert done == 5 and not stopped
+    np.testing.assert_array_equal(run, kept)
+    # the same generations one call at a time, each on a fresh copy
+    state, last = kept, np.empty(0)
+    for row in range(5):
+        state = cma_generation(state, last, normals, normals, row)
+        last = objective(state[:lam])
+    np.testing.assert_array_equal(out, state)
+    np.testing.assert_array_equal(costs, last)
