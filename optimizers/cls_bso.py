@@ -60,9 +60,9 @@ from formation_bench.optimizers.compiled import (
 )
 from formation_bench.optimizers.original_bso_kernels import ShiConfig, ShiSettings, shi_step
 from formation_bench.optimizers.population import (
-    ITERATION_LIMIT_NONE,
     RandomAhead,
     compiled_initial_population,
+    compiled_iteration_limit,
     evaluate_prefix,
     greedy_select,
     initial_population,
@@ -411,9 +411,7 @@ class ChaoticLocalSearchBSO(LocalSearchConfig, ShiConfig, PopulationOptimizer[Lo
         n, d = x.shape
         shi_packed = self.shi_settings(bounds, t_max)
         local_packed = pack_settings(LocalSettings, self)
-        iteration_limit = (
-            budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
-        )
+        iteration_limit = compiled_iteration_limit(budget)
         carry = [x, f, rng.random((1, d)), np.empty(0), 0, 0]
 
         def run_block(

@@ -109,8 +109,8 @@ from formation_bench.optimizers.compiled import (
 )
 from formation_bench.optimizers.compiled import evaluate_prefix as compiled_evaluate_prefix
 from formation_bench.optimizers.population import (
-    ITERATION_LIMIT_NONE,
     ROWS_AHEAD,
+    compiled_iteration_limit,
     evaluate_prefix,
 )
 from formation_bench.optimizers.registry import register
@@ -344,9 +344,7 @@ class CMAES(PopulationOptimizer[CMAState]):
         state = self.first_run(bounds, start, self.planned_iterations(budget))
         history_nfev = [int(counts[NFEV])]
         history_fun = [float(best[0])]
-        iteration_limit = (
-            budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
-        )
+        iteration_limit = compiled_iteration_limit(budget)
         message = "iteration budget reached"
         nit = 0
         while nit < iteration_limit:

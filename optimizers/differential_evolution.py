@@ -58,9 +58,9 @@ from formation_bench.optimizers.de_ops import (
     select_trials,
 )
 from formation_bench.optimizers.population import (
-    ITERATION_LIMIT_NONE,
     RandomAhead,
     compiled_initial_population,
+    compiled_iteration_limit,
     initial_population,
     iteration_randoms,
     no_randoms,
@@ -166,9 +166,7 @@ class DifferentialEvolution(DEConfig, PopulationOptimizer[DEState]):
         )
         n, d = x.shape
         settings = self.de_settings(bounds)
-        iteration_limit = (
-            budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
-        )
+        iteration_limit = compiled_iteration_limit(budget)
         carry = [x, f, np.empty((0, d)), np.empty(0)]
 
         def run_block(

@@ -52,9 +52,9 @@ from formation_bench.optimizers.modified_bso_kernels import (
     modified_bso_iteration,
 )
 from formation_bench.optimizers.population import (
-    ITERATION_LIMIT_NONE,
     RandomAhead,
     compiled_initial_population,
+    compiled_iteration_limit,
     evaluate_prefix,
     greedy_select,
     initial_population,
@@ -231,9 +231,7 @@ class ModifiedBSO(ModifiedBSOConfig, PopulationOptimizer[ModifiedBSOState]):
             self.chaos_replacement, float(self.p_replace), int(self.n_replace),
             int(self.replacement_map),
         )  # fmt: skip
-        iteration_limit = (
-            budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
-        )
+        iteration_limit = compiled_iteration_limit(budget)
         carry = [x, f, np.empty((0, d)), np.empty(0), 0]
 
         def run_block(

@@ -65,9 +65,9 @@ from formation_bench.optimizers.base import (
 from formation_bench.optimizers.compiled import CompiledObjective
 from formation_bench.optimizers.original_bso_kernels import ShiConfig, shi_block, shi_ideas
 from formation_bench.optimizers.population import (
-    ITERATION_LIMIT_NONE,
     RandomAhead,
     compiled_initial_population,
+    compiled_iteration_limit,
     evaluate_prefix,
     greedy_select,
     initial_population,
@@ -187,9 +187,7 @@ class OriginalBSO(ShiConfig, PopulationOptimizer[BSOState]):
         )
         n, d = x.shape
         settings = self.shi_settings(bounds, t_max)
-        iteration_limit = (
-            budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
-        )
+        iteration_limit = compiled_iteration_limit(budget)
         carry = [x, f, np.empty((0, d)), np.empty(0), 0]
 
         def run_block(

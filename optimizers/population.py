@@ -166,6 +166,12 @@ ITERATION_LIMIT_NONE = 9223372036854775807
 """The iteration limit a compiled block receives when the budget sets none."""
 
 
+def compiled_iteration_limit(budget: Budget) -> int:
+    """The budget's iteration limit as a compiled block reads it (:data:`ITERATION_LIMIT_NONE`
+    when it sets none)."""
+    return budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
+
+
 class CompiledStart(NamedTuple):
     """A compiled solve after its initial population: what :func:`run_compiled_blocks` needs."""
 
@@ -218,9 +224,7 @@ def run_compiled_blocks(
     counts, best = start
     history_nfev = [int(counts[NFEV])]
     history_fun = [float(best[0])]
-    iteration_limit = (
-        budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
-    )
+    iteration_limit = compiled_iteration_limit(budget)
     message = "iteration budget reached"
     nit = 0
     while nit < iteration_limit:
@@ -283,9 +287,7 @@ def run_compiled_draws(
     leaves a Generator unchanged), so the loop, its limits and its message are that one's.
     """
     counts = start.counts
-    iteration_limit = (
-        budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
-    )
+    iteration_limit = compiled_iteration_limit(budget)
 
     def run_drawn_block(
         nit: int, randoms: RandomAhead, history_nfev: np.ndarray, history_fun: np.ndarray
