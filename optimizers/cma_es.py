@@ -101,7 +101,6 @@ from formation_bench.optimizers.cma_ops import (
     run_template,
 )
 from formation_bench.optimizers.compiled import (
-    HAS_BEST,
     NFEV,
     CompiledObjective,
     new_tally,
@@ -110,7 +109,9 @@ from formation_bench.optimizers.compiled import (
 from formation_bench.optimizers.compiled import evaluate_prefix as compiled_evaluate_prefix
 from formation_bench.optimizers.population import (
     ROWS_AHEAD,
+    CompiledStart,
     compiled_iteration_limit,
+    compiled_result,
     evaluate_prefix,
 )
 from formation_bench.optimizers.registry import register
@@ -374,18 +375,10 @@ class CMAES(PopulationOptimizer[CMAState]):
         else:
             if remaining(counts) <= 0:
                 message = "evaluation budget reached"
-        assert counts[HAS_BEST] == 1
-        return OptimizeResult(
-            x=best[1:].copy(),
-            fun=float(best[0]),
-            nfev=int(counts[NFEV]),
-            nit=nit,
-            success=True,
-            message=message,
-            history_nfev=np.asarray(history_nfev, dtype=np.int64),
-            history_fun=np.asarray(history_fun),
-            info={"objective_time_s": math.nan, **self.result_info(state)},
-        )
+        return compiled_result(
+            CompiledStart(counts, best), nit, message, history_nfev, history_fun,
+            self.result_info(state),
+        )  # fmt: skip
 
     # --- runs and restarts -----------------------------------------------------------------------
 

@@ -244,6 +244,22 @@ def run_compiled_blocks(
     else:
         if remaining(counts) <= 0:
             message = "evaluation budget reached"
+    return compiled_result(start, nit, message, history_nfev, history_fun, info())
+
+
+def compiled_result(
+    tally: CompiledStart,
+    nit: int,
+    message: str,
+    history_nfev: list[int],
+    history_fun: list[float],
+    info: dict,
+) -> OptimizeResult:
+    """The :class:`OptimizeResult` of a compiled solve, from its tally and history.
+
+    ``info["objective_time_s"]`` is NaN: compiled code has no clock around its objective calls.
+    """
+    counts, best = tally
     assert counts[HAS_BEST] == 1
     return OptimizeResult(
         x=best[1:].copy(),
@@ -254,7 +270,7 @@ def run_compiled_blocks(
         message=message,
         history_nfev=np.asarray(history_nfev, dtype=np.int64),
         history_fun=np.asarray(history_fun),
-        info={"objective_time_s": math.nan, **info()},
+        info={"objective_time_s": math.nan, **info},
     )
 
 
