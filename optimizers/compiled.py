@@ -19,7 +19,10 @@ paths give the same result to the bit. The optimiser still knows nothing of
 where the cost comes from: only this calling convention.
 
 An objective offers the handle through a ``compiled`` attribute (see
-:func:`compiled_of`); an objective without one is solved through Python.
+:func:`compiled_of`); an objective without one is solved through Python. The handle must
+compute exactly what the objective's call computes, for the dimension of the bounds it is
+solved over: nothing can check a C function, and one that reads past its data reads
+memory that is not its own.
 """
 
 from __future__ import annotations
