@@ -317,7 +317,7 @@ def _no_progress(done: int, total: int) -> None:
 def _compile_notice() -> None:
     if not kernels_cached():
         print(
-            "compiling numba kernels (first run only, about 10 s)...", file=sys.stderr, flush=True
+            "compiling numba kernels (first run only, about 15 s)...", file=sys.stderr, flush=True
         )
 
 
