@@ -115,7 +115,14 @@ def distinct_partners(i: int, n: int, u: np.ndarray, out: np.ndarray) -> None:
     yet taken (``i`` and the earlier partners): each ordered choice is equally
     likely, and the values depend only on ``u``. Needs ``n > len(out)``.
     """
-    taken = np.empty(out.shape[0] + 1, dtype=np.int64)
+    partners_into(i, n, u, out, np.empty(out.shape[0] + 1, dtype=np.int64))
+
+
+# inline: make_trials calls it once per member with its own scratch, so that a generation
+# allocates nothing per member
+@njit(cache=True, inline="always")
+def partners_into(i: int, n: int, u: np.ndarray, out: np.ndarray, taken: np.ndarray) -> None:
+    """:func:`distinct_partners` with ``taken`` (at least ``len(out) + 1`` entries) as scratch."""
     taken[0] = i
     count = 1
     for k in range(out.shape[0]):
@@ -156,12 +163,13 @@ def make_trials(
     block = PARTNER_UNIFORMS + 1 + d
     trials = np.empty((n, d))
     partners = np.empty(PARTNER_UNIFORMS, dtype=np.int64)
+    taken = np.empty(PARTNER_UNIFORMS + 1, dtype=np.int64)
     for i in range(n):
         u = uniforms[i * block : (i + 1) * block]
         if strategy == DEStrategy.RAND_1_BIN:
-            distinct_partners(i, n, u[:3], partners)
+            partners_into(i, n, u[:3], partners, taken)
         else:
-            distinct_partners(i, n, u[:2], partners[:2])
+            partners_into(i, n, u[:2], partners[:2], taken)
         j_rand = min(int(u[PARTNER_UNIFORMS] * d), d - 1)
         for j in range(d):
             if j != j_rand and not u[PARTNER_UNIFORMS + 1 + j] < crossover_rate:
@@ -195,9 +203,11 @@ def select_trials(
     """
     new_x = x.copy()
     new_f = f.copy()
+    # element loops, not a row assignment: see population.greedy_select
     for i in range(trials.shape[0]):
         if trial_costs[i] <= f[i]:
-            new_x[i] = trials[i]
+            for c in range(x.shape[1]):
+                new_x[i, c] = trials[i, c]
             new_f[i] = trial_costs[i]
     return new_x, new_f
 
