@@ -345,8 +345,7 @@ class PopulationOptimizer(Optimizer, Generic[StateT]):
         started = perf_counter()
         x0 = check_x0(x0, bounds)
         compiled = compiled_of(objective)
-        # a deadline needs the clock between iterations, which only the Python loop reads
-        if compiled is not None and budget.deadline_s is None and self.has_compiled_loop():
+        if compiled is not None and self.has_compiled_loop():
             return self.minimize_compiled(compiled, bounds, rng, budget, x0)
         counter = EvaluationCounter(objective, bounds.dim, budget.max_evaluations)
         max_iterations = self.planned_iterations(budget)
@@ -404,9 +403,11 @@ class PopulationOptimizer(Optimizer, Generic[StateT]):
         budget: Budget,
         x0: np.ndarray | None,
     ) -> OptimizeResult:
-        """:meth:`minimize` with the iterations in compiled code (no deadline; ``x0`` checked).
+        """:meth:`minimize` with the iterations in compiled code (``x0`` already checked).
 
         It must give the result of the Python loop to the bit, with the same draws from
         ``rng``; ``info["objective_time_s"]`` is NaN there, since compiled code has no clock.
+        A deadline is checked in Python before every iteration, which then runs alone in
+        its compiled call.
         """
         raise NotImplementedError(f"{type(self).__name__} has no compiled solve loop")

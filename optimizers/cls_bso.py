@@ -62,7 +62,6 @@ from formation_bench.optimizers.original_bso_kernels import ShiConfig, ShiSettin
 from formation_bench.optimizers.population import (
     RandomAhead,
     compiled_initial_population,
-    compiled_iteration_limit,
     evaluate_prefix,
     greedy_select,
     initial_population,
@@ -411,17 +410,17 @@ class ChaoticLocalSearchBSO(LocalSearchConfig, ShiConfig, PopulationOptimizer[Lo
         n, d = x.shape
         shi_packed = self.shi_settings(bounds, t_max)
         local_packed = pack_settings(LocalSettings, self)
-        iteration_limit = compiled_iteration_limit(budget)
         carry = [x, f, rng.random((1, d)), np.empty(0), 0, 0]
 
         def run_block(
-            nit: int, randoms: RandomAhead, history_nfev: np.ndarray, history_fun: np.ndarray
-        ) -> int:
+            nit: int, limit: int, randoms: RandomAhead, history_nfev: np.ndarray,
+            history_fun: np.ndarray,
+        ) -> int:  # fmt: skip
             x, f, candidates, costs, replacements, improvements = carry
             x, f, candidates, costs, done, replaced, improved = cls_block(
                 objective.address, objective.data, start.counts, start.best, x, f, candidates,
                 costs, randoms.uniforms, randoms.normals, nit, randoms.first_iteration,
-                iteration_limit, shi_packed, local_packed, history_nfev, history_fun,
+                limit, shi_packed, local_packed, history_nfev, history_fun,
             )  # fmt: skip
             carry[:] = [
                 x, f, candidates, costs, replacements + replaced, improvements + improved

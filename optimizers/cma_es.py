@@ -11,7 +11,7 @@ defaults). The eigendecomposition of C is refreshed lazily, after
 reference implementation. The update rules are in :mod:`.cma_ops`; one
 compiled call per generation does all of a generation's own work. With an
 objective that offers a compiled handle (see
-:mod:`~formation_bench.optimizers.compiled`) and no deadline, whole blocks of
+:mod:`~formation_bench.optimizers.compiled`), whole blocks of
 generations run in one compiled call (:func:`.cma_block`); Python draws the
 random numbers and restarts the runs, at the moments the Python loop does, so
 both give the same solve to the bit.
@@ -75,6 +75,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import IntEnum
+from time import perf_counter
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -340,6 +341,7 @@ class CMAES(PopulationOptimizer[CMAState]):
         calls in the same order and give the same result.
         """
         counts, best = new_tally(bounds.dim, budget.max_evaluations)
+        started = perf_counter()
         start = bounds.sample(rng, 1) if x0 is None else x0[None].copy()
         compiled_evaluate_prefix(objective.address, objective.data, start, counts, best)
         state = self.first_run(bounds, start, self.planned_iterations(budget))
@@ -348,9 +350,14 @@ class CMAES(PopulationOptimizer[CMAState]):
         iteration_limit = compiled_iteration_limit(budget)
         message = "iteration budget reached"
         nit = 0
+        deadline_s = budget.deadline_s
         while nit < iteration_limit:
             if remaining(counts) <= 0:
                 message = "evaluation budget reached"
+                break
+            # checked before every generation, as the Python loop does: one per call then
+            if deadline_s is not None and perf_counter() - started >= deadline_s:
+                message = "deadline reached"
                 break
             if nit + 1 - state.first_iteration >= state.normals.shape[0]:
                 state = self.draw(state, rng, int(remaining(counts)), nit + 1)
@@ -359,8 +366,8 @@ class CMAES(PopulationOptimizer[CMAState]):
             block_fun = np.empty(rows)
             run, costs, done, stopped = cma_block(
                 objective.address, objective.data, counts, best, state.run, state.costs,
-                state.normals, state.uniforms, nit, state.first_iteration, iteration_limit,
-                block_nfev, block_fun,
+                state.normals, state.uniforms, nit, state.first_iteration,
+                nit + 1 if deadline_s is not None else iteration_limit, block_nfev, block_fun,
             )  # fmt: skip
             history_nfev.extend(block_nfev[:done].tolist())
             history_fun.extend(block_fun[:done].tolist())
@@ -376,7 +383,7 @@ class CMAES(PopulationOptimizer[CMAState]):
             if remaining(counts) <= 0:
                 message = "evaluation budget reached"
         return compiled_result(
-            CompiledStart(counts, best), nit, message, history_nfev, history_fun,
+            CompiledStart(counts, best, started), nit, message, history_nfev, history_fun,
             self.result_info(state),
         )  # fmt: skip
 

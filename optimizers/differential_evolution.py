@@ -60,7 +60,6 @@ from formation_bench.optimizers.de_ops import (
 from formation_bench.optimizers.population import (
     RandomAhead,
     compiled_initial_population,
-    compiled_iteration_limit,
     initial_population,
     iteration_randoms,
     no_randoms,
@@ -166,15 +165,15 @@ class DifferentialEvolution(DEConfig, PopulationOptimizer[DEState]):
         )
         n, d = x.shape
         settings = self.de_settings(bounds)
-        iteration_limit = compiled_iteration_limit(budget)
         carry = [x, f, np.empty((0, d)), np.empty(0)]
 
         def run_block(
-            nit: int, randoms: RandomAhead, history_nfev: np.ndarray, history_fun: np.ndarray
-        ) -> int:
+            nit: int, limit: int, randoms: RandomAhead, history_nfev: np.ndarray,
+            history_fun: np.ndarray,
+        ) -> int:  # fmt: skip
             x, f, trials, trial_costs, done = de_block(
                 objective.address, objective.data, start.counts, start.best, *carry,
-                randoms.uniforms, nit, randoms.first_iteration, iteration_limit, settings,
+                randoms.uniforms, nit, randoms.first_iteration, limit, settings,
                 history_nfev, history_fun,
             )  # fmt: skip
             carry[:] = [x, f, trials, trial_costs]

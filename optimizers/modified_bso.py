@@ -54,7 +54,6 @@ from formation_bench.optimizers.modified_bso_kernels import (
 from formation_bench.optimizers.population import (
     RandomAhead,
     compiled_initial_population,
-    compiled_iteration_limit,
     evaluate_prefix,
     greedy_select,
     initial_population,
@@ -231,17 +230,17 @@ class ModifiedBSO(ModifiedBSOConfig, PopulationOptimizer[ModifiedBSOState]):
             self.chaos_replacement, float(self.p_replace), int(self.n_replace),
             int(self.replacement_map),
         )  # fmt: skip
-        iteration_limit = compiled_iteration_limit(budget)
         carry = [x, f, np.empty((0, d)), np.empty(0), 0]
 
         def run_block(
-            nit: int, randoms: RandomAhead, history_nfev: np.ndarray, history_fun: np.ndarray
-        ) -> int:
+            nit: int, limit: int, randoms: RandomAhead, history_nfev: np.ndarray,
+            history_fun: np.ndarray,
+        ) -> int:  # fmt: skip
             x, f, ideas, idea_costs, replacements = carry
             x, f, ideas, idea_costs, done, replaced = modified_bso_block(
                 objective.address, objective.data, start.counts, start.best, x, f, ideas,
                 idea_costs, randoms.uniforms, randoms.normals, nit, randoms.first_iteration,
-                iteration_limit, replacement, packed, history_nfev, history_fun,
+                limit, replacement, packed, history_nfev, history_fun,
             )  # fmt: skip
             carry[:] = [x, f, ideas, idea_costs, replacements + replaced]
             return done

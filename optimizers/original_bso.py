@@ -67,7 +67,6 @@ from formation_bench.optimizers.original_bso_kernels import ShiConfig, shi_block
 from formation_bench.optimizers.population import (
     RandomAhead,
     compiled_initial_population,
-    compiled_iteration_limit,
     evaluate_prefix,
     greedy_select,
     initial_population,
@@ -187,17 +186,17 @@ class OriginalBSO(ShiConfig, PopulationOptimizer[BSOState]):
         )
         n, d = x.shape
         settings = self.shi_settings(bounds, t_max)
-        iteration_limit = compiled_iteration_limit(budget)
         carry = [x, f, np.empty((0, d)), np.empty(0), 0]
 
         def run_block(
-            nit: int, randoms: RandomAhead, history_nfev: np.ndarray, history_fun: np.ndarray
-        ) -> int:
+            nit: int, limit: int, randoms: RandomAhead, history_nfev: np.ndarray,
+            history_fun: np.ndarray,
+        ) -> int:  # fmt: skip
             x, f, ideas, idea_costs, replacements = carry
             x, f, ideas, idea_costs, done, replaced = shi_block(
                 objective.address, objective.data, start.counts, start.best, x, f, ideas,
                 idea_costs, randoms.uniforms, randoms.normals, nit, randoms.first_iteration,
-                iteration_limit, settings, history_nfev, history_fun,
+                limit, settings, history_nfev, history_fun,
             )  # fmt: skip
             carry[:] = [x, f, ideas, idea_costs, replacements + replaced]
             return done

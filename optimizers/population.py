@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from time import perf_counter
 from typing import NamedTuple
 
 import numpy as np
@@ -179,6 +180,8 @@ class CompiledStart(NamedTuple):
     """The tally's counts (see :func:`~formation_bench.optimizers.compiled.new_tally`)."""
     best: np.ndarray
     """The tally's best cost and point."""
+    started: float
+    """``time.perf_counter()`` when the solve began, for a budget's deadline."""
 
 
 def compiled_initial_population(
@@ -190,7 +193,7 @@ def compiled_initial_population(
     max_evaluations: int | None,
 ) -> tuple[np.ndarray, np.ndarray, CompiledStart]:
     """:func:`initial_population` for a compiled solve: the same points, costs and draws."""
-    start = CompiledStart(*new_tally(bounds.dim, max_evaluations))
+    start = CompiledStart(*new_tally(bounds.dim, max_evaluations), perf_counter())
     points = bounds.sample(rng, size)
     if x0 is not None:
         points[0] = x0
@@ -200,9 +203,10 @@ def compiled_initial_population(
     return points, costs, start
 
 
-BlockRunner = Callable[[int, RandomAhead, np.ndarray, np.ndarray], int]
-"""``(nit, randoms, history_nfev, history_fun) -> iterations done``: runs iterations ``nit + 1``,
-... with the block's random rows while the budget allows, writing one history entry each."""
+BlockRunner = Callable[[int, int, RandomAhead, np.ndarray, np.ndarray], int]
+"""``(nit, limit, randoms, history_nfev, history_fun) -> iterations done``: runs iterations
+``nit + 1``, ... up to ``limit`` with the block's random rows from iteration ``nit + 1`` on,
+while the budget allows, writing one history entry each."""
 
 
 def run_compiled_blocks(
@@ -221,23 +225,34 @@ def run_compiled_blocks(
     iteration needs one, of the same rows), so the compiled solve and the Python one take the
     same numbers, leave ``rng`` in the same state and give the same result.
     """
-    counts, best = start
+    counts, best = start.counts, start.best
     history_nfev = [int(counts[NFEV])]
     history_fun = [float(best[0])]
     iteration_limit = compiled_iteration_limit(budget)
+    deadline_s = budget.deadline_s
     message = "iteration budget reached"
     nit = 0
+    randoms = no_randoms(n_uniforms, normal_shape)
     while nit < iteration_limit:
         if remaining(counts) <= 0:
             message = "evaluation budget reached"
             break
+        # a deadline is checked before every iteration, as the Python loop does: one
+        # iteration per compiled call then
+        if deadline_s is not None and perf_counter() - start.started >= deadline_s:
+            message = "deadline reached"
+            break
         iteration = nit + 1
-        rows = min(max(t_max - iteration + 1, 1), ROWS_AHEAD)
-        uniforms = rng.random((rows, n_uniforms))
-        normals = rng.standard_normal((rows, *normal_shape))
-        block_nfev = np.empty(rows, dtype=np.int64)
-        block_fun = np.empty(rows)
-        done = run_block(nit, RandomAhead(iteration, uniforms, normals), block_nfev, block_fun)
+        if iteration - randoms.first_iteration >= randoms.uniforms.shape[0]:
+            rows = min(max(t_max - iteration + 1, 1), ROWS_AHEAD)
+            uniforms = rng.random((rows, n_uniforms))
+            normals = rng.standard_normal((rows, *normal_shape))
+            randoms = RandomAhead(iteration, uniforms, normals)
+        left = randoms.first_iteration + randoms.uniforms.shape[0] - iteration
+        block_nfev = np.empty(left, dtype=np.int64)
+        block_fun = np.empty(left)
+        limit = iteration if deadline_s is not None else iteration_limit
+        done = run_block(nit, limit, randoms, block_nfev, block_fun)
         history_nfev.extend(block_nfev[:done].tolist())
         history_fun.extend(block_fun[:done].tolist())
         nit += done
@@ -259,7 +274,7 @@ def compiled_result(
 
     ``info["objective_time_s"]`` is NaN: compiled code has no clock around its objective calls.
     """
-    counts, best = tally
+    counts, best = tally.counts, tally.best
     assert counts[HAS_BEST] == 1
     return OptimizeResult(
         x=best[1:].copy(),
@@ -303,13 +318,14 @@ def run_compiled_draws(
     leaves a Generator unchanged), so the loop, its limits and its message are that one's.
     """
     counts = start.counts
-    iteration_limit = compiled_iteration_limit(budget)
 
     def run_drawn_block(
-        nit: int, randoms: RandomAhead, history_nfev: np.ndarray, history_fun: np.ndarray
-    ) -> int:
+        nit: int, limit: int, randoms: RandomAhead, history_nfev: np.ndarray,
+        history_fun: np.ndarray,
+    ) -> int:  # fmt: skip
         left = int(remaining(counts))
-        rows = min(randoms.uniforms.shape[0], iteration_limit - nit, -(-left // batch))
+        rows_left = randoms.first_iteration + randoms.uniforms.shape[0] - (nit + 1)
+        rows = min(rows_left, limit - nit, -(-left // batch))
         total = sum(uniforms_per_iteration(min(batch, left - j * batch)) for j in range(rows))
         done = run_block(nit, rows, rng.random(total), history_nfev, history_fun)
         if done != rows:

@@ -28,7 +28,7 @@ offending coordinate); the velocity of a repaired coordinate becomes the step
 actually taken. Personal bests are updated only on strict improvement, so
 NaN/inf costs (mapped to +inf by the evaluation counter) never become a best.
 
-A compiled objective without a deadline is solved block by block in
+A compiled objective is solved block by block in
 :func:`~formation_bench.optimizers.pso_ops.pso_block`, with the result and the draws of the
 Python loop (:meth:`PSO.minimize_compiled`).
 """

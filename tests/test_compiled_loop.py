@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import pickle
+import time
 
 import numba as nb
 import numpy as np
@@ -264,12 +265,36 @@ def test_cma_es_restarts_in_the_compiled_loop_give_the_python_loop_result(
         assert "runbudget" in stops  # a small run stopped by its allowance
 
 
-def test_a_deadline_solves_through_python():
-    optimizer = get_optimizer("modified-bso")
+@pytest.mark.parametrize("name", compiled_loop_optimizers())
+def test_a_generous_deadline_changes_nothing_in_the_compiled_loop(name):
+    # under a deadline every iteration is its own compiled call, the random blocks reused
+    # across calls: the result and the draws must still be the Python loop's
+    optimizer = get_optimizer(name)
     problem = random_problem(np.random.default_rng(5), PAPER)
-    budget = Budget(max_iterations=5, deadline_s=60.0)
+    for budget in [Budget(max_evaluations=1500), Budget(max_iterations=70)]:
+        generous = Budget(budget.max_evaluations, budget.max_iterations, deadline_s=60.0)
+        rngs = [np.random.default_rng(2) for _ in range(3)]
+        plain = optimizer.minimize(problem, problem.bounds, rngs[0], budget)
+        timed = optimizer.minimize(problem, problem.bounds, rngs[1], generous)
+        python = optimizer.minimize(PlainCallable(problem), problem.bounds, rngs[2], generous)
+        assert math.isnan(timed.info["objective_time_s"])
+        assert same_result(plain, timed) and same_result(python, timed), (name, budget)
+        assert rngs[0].random() == rngs[1].random() == rngs[2].random()
+
+
+@pytest.mark.parametrize("name", ["modified-bso", "pso", "de", "cma-es", "random-search"])
+def test_a_compiled_solve_stops_at_its_deadline_with_its_best_point(name):
+    optimizer = get_optimizer(name)
+    problem = random_problem(np.random.default_rng(6), PAPER)
+    optimizer.minimize(problem, problem.bounds, np.random.default_rng(0), Budget(3))  # loaded
+    budget = Budget(max_iterations=10_000_000, deadline_s=0.005)
+    start = time.perf_counter()
     result = optimizer.minimize(problem, problem.bounds, np.random.default_rng(0), budget)
-    assert not math.isnan(result.info["objective_time_s"])
+    elapsed = time.perf_counter() - start
+    assert result.message == "deadline reached"
+    assert 1 <= result.nit < 10_000_000 and result.nfev == result.history_nfev[-1]
+    assert elapsed < 0.005 + 0.05  # checked before every iteration: at most one overruns
+    assert result.fun == result.history_fun[-1] == problem(result.x[None])[0]
 
 
 def same_state(a, b) -> bool:
@@ -376,7 +401,7 @@ def test_one_generator_through_consecutive_solves_stays_in_step():
 
 def test_a_block_that_runs_fewer_iterations_than_planned_is_an_error():
     counts = np.array([0, 100, 1], dtype=np.int64)
-    start = CompiledStart(counts, np.zeros(3))
+    start = CompiledStart(counts, np.zeros(3), time.perf_counter())
 
     def lazy_block(nit, rows, uniforms, history_nfev, history_fun):
         return rows - 1
