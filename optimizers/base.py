@@ -29,7 +29,7 @@ from formation_bench.fields import (  # noqa: F401
     check_real,
     coerce_enum,
 )
-from formation_bench.optimizers.compiled import CompiledObjective, compiled_of
+from formation_bench.optimizers.compiled import UNLIMITED, CompiledObjective, compiled_of
 
 
 class BatchObjective(Protocol):
@@ -165,7 +165,6 @@ class OptimizeResult:
     """Optimiser-specific extras (e.g. time spent clustering)."""
 
 
-_UNLIMITED = int(np.iinfo(np.int64).max)  # computed once: np.iinfo costs ~1 us per call
 _FLOAT64 = np.dtype(np.float64)
 
 
@@ -193,7 +192,7 @@ class EvaluationCounter:
     def remaining(self) -> int:
         """Evaluations left (a large number when there is no evaluation limit)."""
         if self.max_evaluations is None:
-            return _UNLIMITED
+            return UNLIMITED
         return self.max_evaluations - self.nfev
 
     def __call__(self, x: np.ndarray) -> np.ndarray:

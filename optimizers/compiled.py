@@ -48,6 +48,9 @@ COST_SIGNATURE = types.void(
 NO_LIMIT = -1
 """``counts[LIMIT]`` of a solve without an evaluation limit."""
 
+UNLIMITED = 9223372036854775807
+"""The largest int64: what is left of a limit that is not set (evaluations, iterations)."""
+
 NFEV, LIMIT, HAS_BEST = 0, 1, 2
 """Slots of a tally's ``counts``: evaluations so far, the evaluation limit (or :data:`NO_LIMIT`),
 and 1 once a best point is held."""
@@ -163,7 +166,7 @@ def new_tally(dim: int, max_evaluations: int | None) -> tuple[np.ndarray, np.nda
 def remaining(counts: np.ndarray) -> int:
     """Evaluations left (a large number without a limit), as ``EvaluationCounter.remaining``."""
     if counts[LIMIT] == NO_LIMIT:
-        return 9223372036854775807
+        return UNLIMITED
     return counts[LIMIT] - counts[NFEV]
 
 

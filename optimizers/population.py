@@ -19,6 +19,7 @@ from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, O
 from formation_bench.optimizers.compiled import (
     HAS_BEST,
     NFEV,
+    UNLIMITED,
     CompiledObjective,
     new_tally,
     remaining,
@@ -163,14 +164,10 @@ def progress(iteration: int, t_max: int) -> float:
     return min(max((iteration - 1) / (t_max - 1), 0.0), 1.0)
 
 
-ITERATION_LIMIT_NONE = 9223372036854775807
-"""The iteration limit a compiled block receives when the budget sets none."""
-
-
 def compiled_iteration_limit(budget: Budget) -> int:
-    """The budget's iteration limit as a compiled block reads it (:data:`ITERATION_LIMIT_NONE`
-    when it sets none)."""
-    return budget.max_iterations if budget.max_iterations is not None else ITERATION_LIMIT_NONE
+    """The budget's iteration limit as a compiled block reads it
+    (:data:`~formation_bench.optimizers.compiled.UNLIMITED` when it sets none)."""
+    return budget.max_iterations if budget.max_iterations is not None else UNLIMITED
 
 
 class CompiledStart(NamedTuple):
