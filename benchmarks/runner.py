@@ -14,7 +14,7 @@ import numpy as np
 from formation_bench.benchmarks.outputs import seed_column, text_column, trace_frame
 from formation_bench.benchmarks.record import Provenance, RunDescription, RunRecord
 from formation_bench.benchmarks.spec import RunSpec
-from formation_bench.mpc.cost import compiled_cost, pack_problem, packed_batch_cost
+from formation_bench.mpc.cost import Penalties, compiled_cost, pack_problem, packed_batch_cost
 from formation_bench.mpc.loop import ProgressCallback, Trace, simulate
 from formation_bench.mpc.metrics import compute_metrics, pair_names
 from formation_bench.mpc.model import rollout
@@ -63,7 +63,7 @@ def warm_up_kernels() -> None:
     rollout(state, np.zeros((2, 2)), 0.1, 1)
     packed = pack_problem(
         state, np.zeros(2, dtype=np.int64), 0.1, 1, np.zeros((1, 2, 2)), np.zeros((2, 2)),
-        1.0, 1.0,
+        1.0, 1.0, np.zeros((1, 2, 2)), Penalties(),
     )  # fmt: skip
     packed_batch_cost(np.zeros((2, 2)), packed)
     compiled_cost()

@@ -24,6 +24,7 @@ agree.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 
@@ -40,6 +41,30 @@ from formation_bench.mpc.model import (
 )
 
 
+@nb.njit(cache=True, inline="always")
+def _intrusion(x: float, y: float, xs: np.ndarray, ys: np.ndarray, radius: float) -> float:
+    """Sum of ``max(0, radius - |(x, y) - (xs_j, ys_j)|)^2`` over the points."""
+    total = 0.0
+    for j in range(xs.shape[0]):
+        dx, dy = x - xs[j], y - ys[j]
+        gap = radius - math.sqrt(dx * dx + dy * dy)
+        if gap > 0.0:
+            total += gap * gap
+    return total
+
+
+@nb.njit(cache=True, inline="always")
+def _obstacle_intrusion(x: float, y: float, obstacles: np.ndarray) -> float:
+    """Sum of ``max(0, r_o - |(x, y) - c_o|)^2`` over the obstacle rows ``(c_x, c_y, r_o)``."""
+    total = 0.0
+    for o in range(obstacles.shape[0]):
+        dx, dy = x - obstacles[o, 0], y - obstacles[o, 1]
+        gap = obstacles[o, 2] - math.sqrt(dx * dx + dy * dy)
+        if gap > 0.0:
+            total += gap * gap
+    return total
+
+
 # inline: the closed loop calls it only through packed_batch_cost, which then holds the one
 # compiled copy a run builds
 @nb.njit(cache=True, inline="always")
@@ -53,12 +78,24 @@ def batch_cost(
     centre_target: np.ndarray,
     w_dst: float,
     w_centre: float,
+    neighbour_positions: np.ndarray,
+    w_collision: float,
+    safety_radius: float,
+    obstacles: np.ndarray,
+    w_obstacle: float,
 ) -> np.ndarray:
     """Cost of every row of ``decisions`` ``(n, 2 * n_blocks)``: returns ``(n,)``.
 
     ``distance_targets`` is ``(J, H, 2)``, ``centre_target`` ``(H, 2)``,
     ``block_of_step`` ``(H,)`` maps each period to its control block, and
-    ``w_centre`` is ``w_trj / N**2``.
+    ``w_centre`` is ``w_trj / M**2`` (M UAVs in the centre's estimate).
+
+    The penalties are added after eq. (14)'s terms at each period, and only when their
+    weight is positive (so they leave the paper's cost untouched to the bit):
+    ``w_collision * sum_j max(0, safety_radius - |p_i - p_hat_j|)^2`` over the neighbours'
+    estimates ``neighbour_positions`` ``(J, H, 2)``, and
+    ``w_obstacle * sum_o max(0, r_o - |p_i - c_o|)^2`` over ``obstacles`` rows
+    ``(c_x, c_y, r_o)`` (r_o the radius at which the penalty starts).
 
     Each period is :func:`~formation_bench.mpc.model.advance_period` for every
     candidate, written out with the candidates innermost: the same operations
@@ -113,10 +150,24 @@ def batch_cost(
             cx = x[i] - centre_target[k, 0]
             cy = y[i] - centre_target[k, 1]
             total[i] += w_dst * formation + w_centre * (cx * cx + cy * cy)
+        if w_collision > 0.0:
+            for i in range(n):
+                total[i] += w_collision * _intrusion(
+                    x[i], y[i], neighbour_positions[:, k, 0], neighbour_positions[:, k, 1],
+                    safety_radius,
+                )  # fmt: skip
+        if w_obstacle > 0.0:
+            for i in range(n):
+                total[i] += w_obstacle * _obstacle_intrusion(x[i], y[i], obstacles)
     out = np.empty(n)
     for i in range(n):
         out[i] = total[i] * period
     return out
+
+
+NO_PENALTIES = (np.zeros((0, 0, 2)), 0.0, 1.0, np.zeros((0, 3)), 0.0)
+""":func:`batch_cost`'s trailing arguments for eq. (14) alone: no collision or obstacle
+penalty."""
 
 
 @nb.njit(cache=True)
@@ -175,11 +226,20 @@ def reference_cost(
     w_dst: float,
     w_trj: float,
     n_uav: int,
+    centre_offset_sum: np.ndarray | None = None,
+    w_collision: float = 0.0,
+    safety_radius: float = 1.0,
+    obstacles: np.ndarray | None = None,
+    w_obstacle: float = 0.0,
 ) -> float:
     """Eq. (14) as printed, for one decision vector, with a four-stage RK4.
 
     ``neighbour_positions`` and ``desired_relative`` are ``(J, H, 2)`` (the
     estimates p_hat_j and the desired p_ij^d), ``reference`` is ``(H, 2)``.
+    With ``centre_offset_sum`` ``(H, 2)`` (the UAV's and its neighbours' summed desired
+    offsets) the centre is estimated from the UAV and its J neighbours alone, as
+    ``(p_i + sum_j p_hat_j - centre_offset_sum) / (J + 1)``; without it, eq. (14)'s
+    ``(p_i + sum_j p_hat_j) / n_uav``. The penalties are as in :func:`batch_cost`.
     Deliberately plain: it is the yardstick for :func:`batch_cost`.
     """
 
@@ -203,15 +263,37 @@ def reference_cost(
             float(np.sum((p_i - neighbour_positions[j, k] - desired_relative[j, k]) ** 2))
             for j in range(neighbour_positions.shape[0])
         )
-        centre = (p_i + neighbour_positions[:, k].sum(axis=0)) / n_uav
+        if centre_offset_sum is None:
+            centre = (p_i + neighbour_positions[:, k].sum(axis=0)) / n_uav
+        else:
+            group = neighbour_positions.shape[0] + 1
+            centre = (p_i + neighbour_positions[:, k].sum(axis=0) - centre_offset_sum[k]) / group
         tracking = float(np.sum((centre - reference[k]) ** 2))
-        total += period * (w_dst * formation + w_trj * tracking)
+        penalty = 0.0
+        for j in range(neighbour_positions.shape[0] if w_collision > 0 else 0):
+            gap = safety_radius - float(np.linalg.norm(p_i - neighbour_positions[j, k]))
+            penalty += w_collision * max(gap, 0.0) ** 2
+        for cx, cy, radius in obstacles if obstacles is not None and w_obstacle > 0 else ():
+            gap = radius - float(np.hypot(p_i[0] - cx, p_i[1] - cy))
+            penalty += w_obstacle * max(gap, 0.0) ** 2
+        total += period * (w_dst * formation + w_trj * tracking + penalty)
     return total
 
 
-PACKED_HEADER = 6
+PACKED_HEADER = 10
 """Leading scalars of :func:`pack_problem`'s array: neighbours, horizon, sub-steps, period,
-``w_dst`` and ``w_centre``."""
+``w_dst``, ``w_centre``, ``w_collision``, the safety radius, obstacles and ``w_obstacle``."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Penalties:
+    """The penalty terms of :func:`batch_cost` beyond eq. (14); the default is none."""
+
+    w_collision: float = 0.0
+    safety_radius: float = 1.0
+    obstacles: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
+    """Rows ``(c_x, c_y, r)``, r the radius at which the penalty starts."""
+    w_obstacle: float = 0.0
 
 
 def pack_problem(
@@ -223,15 +305,22 @@ def pack_problem(
     centre_target: np.ndarray,
     w_dst: float,
     w_centre: float,
+    neighbour_positions: np.ndarray,
+    penalties: Penalties,
 ) -> np.ndarray:
     """:func:`batch_cost`'s problem as one flat float64 array, as :func:`compiled_cost` reads it.
 
     Header (:data:`PACKED_HEADER` values), then the state (4), the block index of every
-    period (H, exact as floats), the distance targets (J * H * 2) and the centre target (H * 2).
+    period (H, exact as floats), the distance targets (J * H * 2), the centre target (H * 2),
+    the neighbours' estimates (J * H * 2) and the obstacles (3 per obstacle).
     """
     horizon = block_of_step.shape[0]
     n_neighbours = distance_targets.shape[0]
-    header = [n_neighbours, horizon, substeps, period, w_dst, w_centre]
+    obstacles = np.asarray(penalties.obstacles, dtype=np.float64).reshape(-1, 3)
+    header = [
+        n_neighbours, horizon, substeps, period, w_dst, w_centre,
+        penalties.w_collision, penalties.safety_radius, obstacles.shape[0], penalties.w_obstacle,
+    ]  # fmt: skip
     return np.concatenate(
         (
             np.array(header, dtype=np.float64),
@@ -239,9 +328,18 @@ def pack_problem(
             block_of_step,
             distance_targets.reshape(-1),
             centre_target.reshape(-1),
+            neighbour_positions.reshape(-1),
+            obstacles.reshape(-1),
         ),
         dtype=np.float64,
     )
+
+
+@nb.njit(cache=True, inline="always")
+def packed_size(header: np.ndarray) -> int:
+    """Length of a packed problem from its header."""
+    n_neighbours, horizon, n_obstacles = int(header[0]), int(header[1]), int(header[8])
+    return PACKED_HEADER + 4 + horizon + 4 * n_neighbours * horizon + 2 * horizon + 3 * n_obstacles
 
 
 @nb.njit(cache=True)
@@ -249,6 +347,7 @@ def packed_batch_cost(decisions: np.ndarray, data: np.ndarray) -> np.ndarray:
     """:func:`batch_cost` of the problem packed by :func:`pack_problem` (same arithmetic)."""
     n_neighbours, horizon, substeps = int(data[0]), int(data[1]), int(data[2])
     period, w_dst, w_centre = data[3], data[4], data[5]
+    w_collision, safety_radius, n_obstacles, w_obstacle = data[6], data[7], int(data[8]), data[9]
     at = PACKED_HEADER
     state = data[at : at + 4]
     at += 4
@@ -260,16 +359,18 @@ def packed_batch_cost(decisions: np.ndarray, data: np.ndarray) -> np.ndarray:
     distance_targets = data[at : at + size].reshape((n_neighbours, horizon, 2))
     at += size
     centre_target = data[at : at + 2 * horizon].reshape((horizon, 2))
+    at += 2 * horizon
+    neighbour_positions = data[at : at + size].reshape((n_neighbours, horizon, 2))
+    at += size
+    obstacles = data[at : at + 3 * n_obstacles].reshape((n_obstacles, 3))
     return batch_cost(
         decisions, state, block_of_step, period, substeps, distance_targets, centre_target,
-        w_dst, w_centre,
+        w_dst, w_centre, neighbour_positions, w_collision, safety_radius, obstacles, w_obstacle,
     )  # fmt: skip
 
 
 def _compiled_cost(x_ptr, n, d, data_ptr, out_ptr):  # type: ignore[no-untyped-def]
-    header = nb.carray(data_ptr, (PACKED_HEADER,))
-    n_neighbours, horizon = int(header[0]), int(header[1])
-    size = PACKED_HEADER + 4 + horizon + 2 * n_neighbours * horizon + 2 * horizon
+    size = packed_size(nb.carray(data_ptr, (PACKED_HEADER,)))
     costs = packed_batch_cost(nb.carray(x_ptr, (n, d)), nb.carray(data_ptr, (size,)))
     out = nb.carray(out_ptr, (n,))
     for i in range(n):

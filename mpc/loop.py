@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from formation_bench.mpc.model import step_plant
+from formation_bench.mpc.disturbance import Disturbances
+from formation_bench.mpc.network import Network, listening
 from formation_bench.mpc.problem import (
     LocalProblem,
     Plan,
@@ -30,7 +31,7 @@ from formation_bench.mpc.problem import (
     estimate_positions,
     shifted_controls,
 )
-from formation_bench.mpc.scenario import Scenario
+from formation_bench.mpc.scenario import CommunicationGraph, Scenario
 from formation_bench.mpc.trigger import (
     TriggerDecision,
     control_condition,
@@ -82,6 +83,14 @@ class Trace:
     plan_at_bound: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
     """``(T, N)`` whether the plan a solve published has a control at one of its bounds
     (within :data:`AT_BOUND_TOLERANCE` of the bound's range), False without a solve."""
+    neighbours: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0), dtype=bool))
+    """``(T, N, N)`` whether UAV i listened to UAV j at t_c (``[c, i, j]``)."""
+    plans_lost: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
+    """``(T, N)`` plans sent to each UAV at t_c that its links lost."""
+    plans_late: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
+    """``(T, N)`` plans each UAV received at t_c later than the next instant after sending."""
+    wind: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 2)))
+    """``(T, N, 2)`` wind velocity that moved each UAV over ``[t_c, t_c + delta_T)``, m/s."""
 
 
 ProgressCallback = Callable[[int, int], None]
@@ -111,13 +120,18 @@ def simulate(
     start_time = time.perf_counter()
     n_uav, horizon, period = scenario.n_uav, scenario.horizon_steps, scenario.period_s
     n_steps = scenario.n_steps
-    rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(n_uav)]
+    # the UAVs' streams come first, so adding the environment's changed none of them
+    streams = np.random.SeedSequence(seed).spawn(n_uav + 3)
+    rngs = [np.random.default_rng(s) for s in streams[:n_uav]]
+    network_rng, wind_rng, noise_rng = (np.random.default_rng(s) for s in streams[n_uav:])
 
     times = np.arange(n_steps + horizon + 1) * period
     reference, heading = scenario.reference_at(times)
     offsets = scenario.desired_offsets(heading)  # (n_steps + H + 1, N, 2)
     lookahead = scenario.trigger_lookahead
-    lower, upper = scenario.control_lower, scenario.control_upper
+    bounds = [scenario.control_bounds_of(i) for i in range(n_uav)]
+    # off the complete graph the centre is estimated from the UAV and its neighbours alone
+    group_centre = scenario.graph != CommunicationGraph.COMPLETE
 
     states = np.empty((n_steps + 1, n_uav, 4))
     states[0] = scenario.initial_state_array()
@@ -129,22 +143,43 @@ def simulate(
     solve_cost = np.full((n_steps, n_uav), np.nan)
     solve_failed = np.zeros((n_steps, n_uav), dtype=bool)
     plan_at_bound = np.zeros((n_steps, n_uav), dtype=bool)
+    neighbours = np.zeros((n_steps, n_uav, n_uav), dtype=bool)
+    plans_lost = np.zeros((n_steps, n_uav), dtype=np.int64)
+    plans_late = np.zeros((n_steps, n_uav), dtype=np.int64)
+    wind = np.zeros((n_steps, n_uav, 2))
 
     plans: list[Plan] = [coasting_plan(states[0, i], 0, scenario) for i in range(n_uav)]
+    network = Network(scenario, plans, network_rng)
+    disturbances = Disturbances(scenario, wind_rng, noise_rng)
     for c in range(n_steps):
-        estimates = np.stack(
-            [
-                estimate_positions(plans[j], c, horizon + 1, period, scenario.estimate_extension)
-                for j in range(n_uav)
-            ]
-        )  # (N, H + 1, 2), instants c .. c + H
+        network.advance_links()
+        plans_late[c] = network.deliver(c)
+        listens = listening(scenario, states[c, :, :2])
+        neighbours[c] = listens
+        measured = disturbances.measure(states[c])
+        estimated: dict[int, np.ndarray] = {}  # positions at c .. c + H, once per plan
         published = list(plans)
         for i in range(n_uav):
-            neighbours = [j for j in range(n_uav) if j != i]
+            heard = [int(j) for j in np.flatnonzero(listens[i])]
+            for plan in (plans[i], *(network.held[i][j] for j in heard)):
+                if id(plan) not in estimated:
+                    estimated[id(plan)] = estimate_positions(
+                        plan, c, horizon + 1, period, scenario.estimate_extension
+                    )
+            own = estimated[id(plans[i])]
+            others = (
+                np.stack([estimated[id(network.held[i][j])] for j in heard])
+                if heard
+                else np.zeros((0, horizon + 1, 2))
+            )  # (J, H + 1, 2)
             desired_relative = np.transpose(
-                offsets[c : c + horizon + 1, i][:, None] - offsets[c : c + horizon + 1, neighbours],
+                offsets[c : c + horizon + 1, i][:, None] - offsets[c : c + horizon + 1, heard],
                 (1, 0, 2),
             )  # (J, H + 1, 2)
+            group_offsets = (
+                offsets[c : c + horizon + 1, [i, *heard]].sum(axis=1) if group_centre else None
+            )
+            lower, upper = bounds[i]
             if c == 0:
                 decision = TriggerDecision(False, False, False, True)
             else:
@@ -152,17 +187,15 @@ def simulate(
                 own_plan = plans[i]
                 decision = TriggerDecision(
                     distance=distance_condition(
-                        estimates[i, window],
-                        estimates[neighbours, window],
-                        desired_relative[:, window],
-                        scenario.eps_p,
+                        own[window], others[:, window], desired_relative[:, window], scenario.eps_p
                     ),
                     tracking=tracking_condition(
-                        estimates[i, window],
-                        estimates[neighbours, window],
+                        own[window],
+                        others[:, window],
                         reference[c : c + lookahead + 1],
-                        n_uav,
+                        len(heard) + 1 if group_centre else n_uav,
                         scenario.eps_o,
+                        None if group_offsets is None else group_offsets[window],
                     ),
                     control=c - own_plan.start_step < horizon
                     and control_condition(
@@ -177,10 +210,11 @@ def simulate(
             problem = LocalProblem(
                 scenario,
                 i,
-                states[c, i],
-                estimates[neighbours, 1:],
+                measured[i],
+                np.ascontiguousarray(others[:, 1:]),
                 desired_relative[:, 1:],
                 reference[c + 1 : c + horizon + 1],
+                None if group_offsets is None else group_offsets[1:],
             )
             warm_start = problem.decision_from_controls(shifted_controls(plans[i], c))
             result = optimizer.minimize(problem, problem.bounds, rngs[i], budget, warm_start)
@@ -194,10 +228,11 @@ def simulate(
             nfev[c, i] = result.nfev
             solve_cost[c, i] = result.fun
             plan_at_bound[c, i] = at_bound(decision, problem.bounds.lower, problem.bounds.upper)
+            plans_lost[c] += network.send(c, i, published[i], listens[:, i])
         plans = published
         for i in range(n_uav):
             controls[c, i] = plans[i].controls[c - plans[i].start_step]
-        states[c + 1] = step_plant(states[c], controls[c], period, scenario.rk4_substeps)
+        states[c + 1], wind[c] = disturbances.step(states[c], controls[c])
         if progress is not None:
             progress(c + 1, n_steps)
 
@@ -221,4 +256,8 @@ def simulate(
         solve_failed=solve_failed,
         plan_at_bound=plan_at_bound,
         deadline_s=None if budget is None else budget.deadline_s,
+        neighbours=neighbours,
+        plans_lost=plans_lost,
+        plans_late=plans_late,
+        wind=wind,
     )

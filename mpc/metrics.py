@@ -21,12 +21,19 @@ import numpy as np
 from formation_bench.mpc.loop import Trace
 from formation_bench.mpc.trigger import TRIGGER_CONDITIONS
 
+PAIR_COLUMNS_MAX_UAVS = 4
+"""Runs of up to this many UAVs have a column per UAV pair (d12, d23, d31 for the paper);
+larger swarms are summarised over the pairs of their communication graph."""
+
 
 def pair_names(n_uav: int) -> list[tuple[str, int, int]]:
     """Named UAV pairs: the ring (d12, d23, ..., dN1) first, then any other pair.
 
-    For the paper's three UAVs this is d12, d23, d31, as in the paper.
+    For the paper's three UAVs this is d12, d23, d31, as in the paper. Empty above
+    :data:`PAIR_COLUMNS_MAX_UAVS` UAVs, where the names would be ambiguous (d112) and too many.
     """
+    if n_uav > PAIR_COLUMNS_MAX_UAVS:
+        return []
     ring = [(i, (i + 1) % n_uav) for i in range(n_uav)] if n_uav > 2 else [(0, 1)]
     seen = {frozenset(p) for p in ring}
     chords = [
@@ -39,6 +46,22 @@ def tracking_error(trace: Trace) -> np.ndarray:
     """Distance of the formation centre (mean position) from the reference, per instant."""
     centre = trace.states[:, :, :2].mean(axis=1)
     return np.linalg.norm(centre - trace.reference, axis=1)
+
+
+def pair_distance_errors(trace: Trace) -> np.ndarray:
+    """``(T + 1, N, N)`` |actual - desired| distance of every pair at every instant."""
+    desired = trace.scenario.desired_distances()
+    positions = trace.states[:, :, :2]
+    actual = np.linalg.norm(positions[:, :, None] - positions[:, None, :], axis=-1)
+    return np.abs(actual - desired)
+
+
+def graph_pairs(trace: Trace) -> np.ndarray:
+    """``(T + 1, N, N)`` the pairs of the communication graph at every instant: i < j with i
+    listening to j or j to i (the last instant keeps the graph of the one before)."""
+    links = trace.neighbours | np.transpose(trace.neighbours, (0, 2, 1))
+    links = np.concatenate((links, links[-1:]))
+    return np.triu(links, k=1)
 
 
 def distance_errors(trace: Trace) -> dict[str, np.ndarray]:
@@ -71,17 +94,17 @@ def closed_loop_cost(trace: Trace, instants: slice | np.ndarray = slice(None)) -
     return float(scenario.period_s * np.sum(rate[instants]))
 
 
-def settling_index(trace: Trace, tracking: np.ndarray, errors: dict[str, np.ndarray]) -> int | None:
-    """Index of the first instant from which every pair's distance error stays within
+def settling_index(trace: Trace, tracking: np.ndarray, errors: np.ndarray) -> int | None:
+    """Index of the first instant from which every graph pair's distance error stays within
     ``settling_distance_band`` of its desired distance and the tracking error within
     ``settling_tracking_band_m`` to the end of the run; None if the last instant is outside.
-    ``tracking`` and ``errors`` are :func:`tracking_error` and :func:`distance_errors` of the
-    trace, at every instant."""
+    ``tracking`` and ``errors`` are :func:`tracking_error` and :func:`pair_distance_errors`
+    of the trace, at every instant; the pairs are :func:`graph_pairs`."""
     scenario = trace.scenario
     desired = scenario.desired_distances()
     inside = tracking <= scenario.settling_tracking_band_m
-    for name, i, j in pair_names(scenario.n_uav):
-        inside &= errors[name] <= scenario.settling_distance_band * desired[i, j]
+    outside_band = (errors > scenario.settling_distance_band * desired) & graph_pairs(trace)
+    inside &= ~outside_band.any(axis=(1, 2))
     outside = np.flatnonzero(~inside)
     if outside.size == 0:
         return 0
@@ -92,18 +115,59 @@ def settling_index(trace: Trace, tracking: np.ndarray, errors: dict[str, np.ndar
 
 def min_separation(trace: Trace) -> float:
     """The smallest distance between any two UAVs at any instant, m."""
-    positions = trace.states[:, :, :2]
-    gaps = np.linalg.norm(positions[:, :, None] - positions[:, None, :], axis=-1)
-    n_uav = positions.shape[1]
-    return float(gaps[:, *np.triu_indices(n_uav, k=1)].min())
+    return float(separation_over_time(trace).min())
 
 
 def control_effort(trace: Trace) -> np.ndarray:
     """Per UAV, the integral over the run of (a / a_max)^2 + (omega / omega_max)^2, where
-    a_max and omega_max are each control's largest bound magnitude: seconds at full effort."""
+    a_max and omega_max are each control's largest bound magnitude for that UAV: seconds at
+    full effort."""
     scenario = trace.scenario
-    scale = np.maximum(np.abs(scenario.control_lower), np.abs(scenario.control_upper))
+    bounds = [scenario.control_bounds_of(i) for i in range(scenario.n_uav)]
+    scale = np.array([np.maximum(np.abs(lower), np.abs(upper)) for lower, upper in bounds])
     return scenario.period_s * np.sum((trace.controls / scale) ** 2, axis=(0, 2))
+
+
+def segment_min_distance(start: np.ndarray, end: np.ndarray) -> np.ndarray:
+    """Smallest norm along each straight segment from ``start`` to ``end`` (``(..., 2)``)."""
+    step = end - start
+    length2 = np.sum(step * step, axis=-1)
+    moving = length2 > 0
+    along = np.where(moving, -np.sum(start * step, axis=-1) / np.where(moving, length2, 1.0), 0.0)
+    along = np.clip(along, 0.0, 1.0)
+    return np.linalg.norm(start + along[..., None] * step, axis=-1)
+
+
+def _events(inside: np.ndarray) -> int:
+    """Times a bool series (over axis 0) turns True, counting a True start once."""
+    before = np.concatenate((np.zeros_like(inside[:1]), inside[:-1]))
+    return int(np.sum(inside & ~before))
+
+
+def collision_periods(trace: Trace) -> np.ndarray:
+    """``(T, N, N)`` upper-triangular: pairs that came closer than ``safety_radius_m`` during
+    each period, with positions moving in straight lines between the instants."""
+    positions = trace.states[:, :, :2]
+    relative = positions[:, :, None] - positions[:, None, :]  # (T + 1, N, N, 2)
+    closest = segment_min_distance(relative[:-1], relative[1:])
+    return np.triu(closest < trace.scenario.safety_radius_m, k=1)
+
+
+def obstacle_periods(trace: Trace) -> np.ndarray:
+    """``(T, N, K)``: UAVs inside obstacle k's radius during each period (straight lines
+    between the instants)."""
+    obstacles = np.asarray(trace.scenario.obstacles, dtype=np.float64).reshape(-1, 3)
+    positions = trace.states[:, :, :2]
+    relative = positions[:, :, None] - obstacles[None, None, :, :2]  # (T + 1, N, K, 2)
+    closest = segment_min_distance(relative[:-1], relative[1:])
+    return closest < obstacles[:, 2]
+
+
+def separation_over_time(trace: Trace) -> np.ndarray:
+    """``(T + 1,)`` the smallest distance between two UAVs at each instant, m."""
+    positions = trace.states[:, :, :2]
+    gaps = np.linalg.norm(positions[:, :, None] - positions[:, None, :], axis=-1)
+    return gaps[:, *np.triu_indices(positions.shape[1], k=1)].min(axis=1)
 
 
 class Per(enum.Enum):
@@ -181,7 +245,34 @@ class Metrics:
         "m",
         per=Per.PAIR,
     )
-    min_separation_m: float = metric("smallest distance between two UAVs over the run", "m")
+    distance_error_rms_m: float = metric(
+        "root mean square of the distance errors of the communication graph's pairs after the "
+        "settle time (every pair on the complete graph)",
+        "m",
+    )
+    min_separation_m: float = metric(
+        "smallest distance between two UAVs at the update instants", "m"
+    )
+    collisions: int = metric(
+        "times a UAV pair came closer than safety_radius_m (straight lines between instants; "
+        "a stay of several periods counts once)",
+        "events",
+    )
+    collision_time_s: float = metric(
+        "time UAV pairs spent closer than safety_radius_m, summed over the pairs (whole periods)",
+        "s",
+    )
+    obstacle_intrusions: int = metric(
+        "times a UAV entered an obstacle's radius (straight lines between instants)", "events"
+    )
+    obstacle_time_s: float = metric(
+        "time UAVs spent inside obstacles, summed over the UAVs (whole periods)", "s"
+    )
+    plans_sent: int = metric("plans sent over the links (one per listener of a new plan)", "plans")
+    plans_lost: int = metric("plans the links lost", "plans")
+    plans_late: int = metric(
+        "plans that arrived later than the instant after they were made", "plans"
+    )
     control_effort: tuple[float, ...] = metric(
         "integral of (a / a_max)^2 + (omega / omega_max)^2 over the run, bounds' largest "
         "magnitudes as the scales",
@@ -270,18 +361,24 @@ def compute_metrics(trace: Trace) -> Metrics:
             f"({trace.times[-1]:.2f} s)"
         )
     tracking_all, errors = tracking_error(trace), distance_errors(trace)
+    pair_errors, pairs = pair_distance_errors(trace), graph_pairs(trace)
+    settled_pair_errors = pair_errors[settled][pairs[settled]]
     tracking = tracking_all[settled]
+    collisions, intrusions = collision_periods(trace), obstacle_periods(trace)
     solve_times = trace.solve_time_s[trace.solved]
     distances = {name: float(err[settled].max()) for name, err in errors.items()}
     solves = tuple(int(n) for n in trace.solved.sum(axis=0))
     by_condition = trace.reasons[trace.solved].sum(axis=0)
     steady = trace.times[1:] >= scenario.settle_time_s - 1e-9
-    settled_from = settling_index(trace, tracking_all, errors)
+    settled_from = settling_index(trace, tracking_all, pair_errors)
+
     return Metrics(
         tracking_error_max_m=float(tracking.max()),
         tracking_error_rms_m=float(np.sqrt(np.mean(tracking**2))),
         distance_error_max_m=distances,
-        distance_error_max_m_max=float(max(distances.values())),
+        distance_error_max_m_max=float(settled_pair_errors.max())
+        if settled_pair_errors.size
+        else math.nan,
         solves=solves,
         solves_total=int(sum(solves)),
         trigger={name: int(by_condition[k]) for k, name in enumerate(TRIGGER_CONDITIONS)},
@@ -296,7 +393,17 @@ def compute_metrics(trace: Trace) -> Metrics:
             name: math.nan if settled_from is None else float(err[settled_from:].max())
             for name, err in errors.items()
         },
+        distance_error_rms_m=float(np.sqrt(np.mean(settled_pair_errors**2)))
+        if settled_pair_errors.size
+        else math.nan,
         min_separation_m=min_separation(trace),
+        collisions=_events(collisions),
+        collision_time_s=float(collisions.sum() * scenario.period_s),
+        obstacle_intrusions=_events(intrusions),
+        obstacle_time_s=float(intrusions.sum() * scenario.period_s),
+        plans_sent=int(np.sum(trace.solved[:, None, :] & trace.neighbours)),
+        plans_lost=int(trace.plans_lost.sum()),
+        plans_late=int(trace.plans_late.sum()),
         control_effort=tuple(float(e) for e in control_effort(trace)),
         solves_at_bound_share=float(trace.plan_at_bound[trace.solved].mean()),
         nfev_total=int(trace.nfev.sum()),

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from formation_bench.mpc.cost import (
+    Penalties,
     block_map,
     compiled_cost,
     pack_problem,
@@ -84,19 +85,18 @@ def shifted_controls(plan: Plan, step: int) -> np.ndarray:
     return plan.controls[index]
 
 
-@functools.lru_cache(maxsize=64)
-def decision_space(scenario: Scenario) -> tuple[np.ndarray, Bounds]:
-    """Block index of every period and the box of the decision vector; shared, do not modify.
+@functools.lru_cache(maxsize=256)
+def decision_space(scenario: Scenario, uav: int = 0) -> tuple[np.ndarray, Bounds]:
+    """Block index of every period and the box of UAV ``uav``'s decision vector; shared, do
+    not modify.
 
     They depend on the scenario only, and a problem is built at every solve:
     building them each time cost 33 µs, a tenth of an ``ltv-osqp`` solve. The
     block map stays writable because numba compiles read-only arrays separately.
     """
     block_of_step = block_map(scenario.horizon_steps, scenario.n_blocks)
-    bounds = Bounds(
-        np.tile(scenario.control_lower, scenario.n_blocks),
-        np.tile(scenario.control_upper, scenario.n_blocks),
-    )
+    lower, upper = scenario.control_bounds_of(uav)
+    bounds = Bounds(np.tile(lower, scenario.n_blocks), np.tile(upper, scenario.n_blocks))
     return block_of_step, bounds
 
 
@@ -116,6 +116,7 @@ class LocalProblem:
         neighbour_positions: np.ndarray,
         desired_relative: np.ndarray,
         reference: np.ndarray,
+        centre_offset_sum: np.ndarray | None = None,
     ) -> None:
         self.scenario = scenario
         self.uav = uav
@@ -126,13 +127,42 @@ class LocalProblem:
         """Desired ``p_i - p_j`` over the horizon, ``(J, H, 2)``."""
         self.reference = reference
         """Desired formation-centre positions over the horizon, ``(H, 2)``."""
-        self.block_of_step, self.bounds = decision_space(scenario)
-        n_uav = scenario.n_uav
+        self.centre_offset_sum = centre_offset_sum
+        """The UAV's and its neighbours' desired offsets summed, ``(H, 2)``, when the centre is
+        estimated from them alone; None: eq. (14)'s centre over all ``n_uav`` UAVs."""
+        self.block_of_step, self.bounds = decision_space(scenario, uav)
+        group = self.centre_group
         self._distance_targets = np.ascontiguousarray(neighbour_positions + desired_relative)
-        self._centre_target = np.ascontiguousarray(
-            n_uav * reference - neighbour_positions.sum(axis=0)
+        if centre_offset_sum is None:
+            centre_target = group * reference - neighbour_positions.sum(axis=0)
+        else:
+            centre_target = group * reference - self.centre_neighbour_sum
+        self._centre_target = np.ascontiguousarray(centre_target)
+        self._w_centre = scenario.w_trj / group**2
+
+    @property
+    def centre_group(self) -> int:
+        """M, the number of UAVs the formation centre is estimated from."""
+        if self.centre_offset_sum is None:
+            return self.scenario.n_uav
+        return self.neighbour_positions.shape[0] + 1
+
+    @property
+    def centre_neighbour_sum(self) -> np.ndarray:
+        """``(H, 2)`` S with the estimated centre ``(p_i + S) / M``: the neighbours' estimates
+        summed, less the group's offsets when the centre is estimated from the group."""
+        total = self.neighbour_positions.sum(axis=0)
+        return total if self.centre_offset_sum is None else total - self.centre_offset_sum
+
+    @functools.cached_property
+    def penalties(self) -> Penalties:
+        """The collision and obstacle penalties of the scenario (none in the paper's)."""
+        scenario = self.scenario
+        obstacles = np.asarray(scenario.obstacles, dtype=np.float64).reshape(-1, 3).copy()
+        obstacles[:, 2] += scenario.obstacle_margin_m
+        return Penalties(
+            scenario.w_collision, scenario.safety_radius_m, obstacles, scenario.w_obstacle
         )
-        self._w_centre = scenario.w_trj / n_uav**2
 
     @property
     def dim(self) -> int:
@@ -152,6 +182,7 @@ class LocalProblem:
         return pack_problem(
             self.state, self.block_of_step, scenario.period_s, scenario.rk4_substeps,
             self._distance_targets, self._centre_target, scenario.w_dst, self._w_centre,
+            np.ascontiguousarray(self.neighbour_positions, dtype=np.float64), self.penalties,
         )  # fmt: skip
 
     def __getstate__(self) -> dict:
@@ -172,7 +203,9 @@ class LocalProblem:
         return reference_cost(
             decision, self.state, self.block_of_step, scenario.period_s, scenario.rk4_substeps,
             self.neighbour_positions, self.desired_relative, self.reference,
-            scenario.w_dst, scenario.w_trj, scenario.n_uav,
+            scenario.w_dst, scenario.w_trj, scenario.n_uav, self.centre_offset_sum,
+            self.penalties.w_collision, self.penalties.safety_radius, self.penalties.obstacles,
+            self.penalties.w_obstacle,
         )  # fmt: skip
 
     def controls(self, decision: np.ndarray) -> np.ndarray:

@@ -29,6 +29,19 @@ class FormationFrame(enum.StrEnum):
     """Offsets are fixed in the world frame."""
 
 
+class CommunicationGraph(enum.StrEnum):
+    """Which UAVs each UAV listens to (its neighbours) at an update instant."""
+
+    COMPLETE = "complete"
+    """Every other UAV (the paper)."""
+    RING = "ring"
+    """The UAVs before and after it in index order (1 with 2 and N, and so on); fixed."""
+    K_NEAREST = "k-nearest"
+    """Its ``graph_neighbours`` nearest UAVs at the instant; changes as the UAVs move."""
+    RANGE = "range"
+    """Every UAV within ``graph_range_m`` at the instant; changes as the UAVs move."""
+
+
 class EstimateExtension(enum.StrEnum):
     """How a neighbour's estimate is extended past the end of its last plan."""
 
@@ -36,6 +49,24 @@ class EstimateExtension(enum.StrEnum):
     """Propagate the plan's terminal state with zero control (constant speed and heading)."""
     HOLD = "hold"
     """Hold the plan's terminal position (the literal reading of Section 2.2)."""
+
+
+def _rows(name: str, value: object, width: int, count: int | None) -> np.ndarray:
+    """``value`` as a ``(count, width)`` finite array (any count if None), or a ValueError
+    naming the field."""
+    if not isinstance(value, tuple | list):
+        raise ValueError(f"Scenario.{name} must be a tuple of {width}-tuples, got {value!r}")
+    rows = np.zeros((0, width))
+    if len(value):
+        rows = _number_array(name, value).reshape(len(value), -1)
+    if rows.shape[1] != width or (count is not None and rows.shape[0] != count):
+        wanted = f"{count} " if count is not None else ""
+        raise ValueError(
+            f"Scenario.{name} must hold {wanted}{width}-tuples of numbers, got {value!r}"
+        )
+    if not np.all(np.isfinite(rows)):
+        raise ValueError(f"Scenario.{name} must be finite, got {value!r}")
+    return rows
 
 
 def _is_number(value: object) -> bool:
@@ -160,6 +191,90 @@ class Scenario:
         doc="Settling time: the formation centre within this distance of the reference, m",
     )  # fmt: skip
 
+    # --- beyond the paper: every field below is off (or the paper's value) by default --------
+    graph: CommunicationGraph = setting(
+        CommunicationGraph.COMPLETE,
+        doc="Communication graph: which UAVs each UAV listens to (complete = the paper)",
+    )
+    """Each UAV's cost and trigger use only its neighbours' plans; off the complete graph the
+    formation centre is estimated from the UAV and its neighbours (docs/scenarios.md)."""
+    graph_neighbours: int = setting(
+        2, low=1, doc="k of the k-nearest graph: neighbours each UAV listens to"
+    )
+    graph_range_m: float = setting(
+        30.0, low=0.0, low_open=True, doc="Radio range of the range-limited graph, m"
+    )
+    packet_loss: float = setting(
+        0.0, low=0.0, high=1.0, high_open=True,
+        doc="Probability that a plan sent over a link is lost (long-run share)",
+    )  # fmt: skip
+    loss_correlation: float = setting(
+        0.0, low=0.0, high=1.0, high_open=True,
+        doc="Burstiness of losses: 0 independent; rho makes a link's loss state persist "
+        "(mean burst 1 / ((1 - packet_loss) (1 - rho)) periods)",
+    )  # fmt: skip
+    delay_steps: int = setting(
+        0, low=0, high=1000, doc="Whole periods by which every plan arrives late"
+    )
+    delay_jitter_steps: int = setting(
+        0, low=0, high=1000,
+        doc="Extra delay of each plan, uniform over 0 .. this many periods (seeded)",
+    )  # fmt: skip
+    wind_mean_m_s: tuple[float, float] = setting(
+        (0.0, 0.0), allowed="two finite numbers",
+        doc="Constant part of the wind (x, y), m/s: moves the plant, not the prediction",
+    )  # fmt: skip
+    gust_std_m_s: float = setting(
+        0.0, low=0.0,
+        doc="Standard deviation of each UAV's gusts per axis (Ornstein-Uhlenbeck), m/s",
+    )  # fmt: skip
+    gust_time_constant_s: float = setting(
+        2.0, low=0.0, low_open=True, doc="Correlation time of the gusts, s"
+    )
+    position_noise_std_m: float = setting(
+        0.0, low=0.0, doc="Noise on the position each UAV measures of itself, per axis, m"
+    )
+    heading_noise_std_rad: float = setting(
+        0.0, low=0.0, doc="Noise on the heading each UAV measures of itself, rad"
+    )
+    speed_noise_std_m_s: float = setting(
+        0.0, low=0.0, doc="Noise on the speed each UAV measures of itself, m/s"
+    )
+    plant_accel_gain: float = setting(
+        1.0, low=0.0, low_open=True,
+        doc="Model mismatch: the plant's acceleration is this times the commanded one",
+    )  # fmt: skip
+    plant_turn_rate_gain: float = setting(
+        1.0, low=0.0, low_open=True,
+        doc="Model mismatch: the plant's turn rate is this times the commanded one",
+    )  # fmt: skip
+    obstacles: tuple[tuple[float, float, float], ...] = setting(
+        (), allowed="(x, y, radius) triples, radius > 0",
+        doc="Circular no-fly zones (centre x m, centre y m, radius m)",
+    )  # fmt: skip
+    obstacle_margin_m: float = setting(
+        2.0, low=0.0, doc="The obstacle penalty starts this far outside an obstacle's radius, m"
+    )
+    w_obstacle: float = setting(
+        0.0, low=0.0, doc="Weight of the obstacle penalty in the local cost (0 = off)"
+    )
+    safety_radius_m: float = setting(
+        3.0, low=0.0, low_open=True,
+        doc="Two UAVs closer than this collide (metrics); the collision penalty starts here, m",
+    )  # fmt: skip
+    w_collision: float = setting(
+        0.0, low=0.0,
+        doc="Weight of the collision penalty against neighbours' estimates (0 = off)",
+    )  # fmt: skip
+    uav_accel_bounds: tuple[tuple[float, float], ...] | None = setting(
+        None, optional=True, allowed="one finite (lower, upper) per UAV, lower < upper",
+        doc="Per-UAV acceleration bounds (mixed vehicles), m/s^2; None = accel_bounds for all",
+    )  # fmt: skip
+    uav_turn_rate_bounds: tuple[tuple[float, float], ...] | None = setting(
+        None, optional=True, allowed="one finite (lower, upper) per UAV, lower < upper",
+        doc="Per-UAV turn-rate bounds (mixed vehicles), rad/s; None = turn_rate_bounds for all",
+    )  # fmt: skip
+
     def __post_init__(self) -> None:
         validate_fields(self)
         if not isinstance(self.name, str) or not self.name:
@@ -210,6 +325,30 @@ class Scenario:
                     f"Scenario.{field_name} must be finite (lower, upper) with lower < upper, "
                     f"got {(lo, hi)}"
                 )
+        wind = self.wind_mean_m_s
+        if not (
+            isinstance(wind, tuple | list)
+            and len(wind) == 2
+            and all(_is_number(w) and math.isfinite(w) for w in wind)
+        ):
+            raise ValueError(f"Scenario.wind_mean_m_s must be two finite numbers, got {wind!r}")
+        obstacles = _rows("obstacles", self.obstacles, 3, None)
+        if np.any(obstacles[:, 2] <= 0):
+            raise ValueError(f"Scenario.obstacles radii must be > 0, got {self.obstacles!r}")
+        for field_name in ("uav_accel_bounds", "uav_turn_rate_bounds"):
+            value = getattr(self, field_name)
+            if value is None:
+                continue
+            pairs = _rows(field_name, value, 2, self.n_uav)
+            if not np.all(pairs[:, 0] < pairs[:, 1]):
+                raise ValueError(
+                    f"Scenario.{field_name} must have lower < upper for every UAV, got {value!r}"
+                )
+        if self.graph == CommunicationGraph.K_NEAREST and self.graph_neighbours >= self.n_uav:
+            raise ValueError(
+                f"Scenario.graph_neighbours must be below the number of UAVs ({self.n_uav}) "
+                f"on the k-nearest graph, got {self.graph_neighbours}"
+            )
 
     @property
     def n_uav(self) -> int:
@@ -242,6 +381,38 @@ class Scenario:
     def control_upper(self) -> np.ndarray:
         """``[a_max, omega_max]``."""
         return np.array([self.accel_bounds[1], self.turn_rate_bounds[1]])
+
+    def control_bounds_of(self, uav: int) -> tuple[np.ndarray, np.ndarray]:
+        """``([a_min, omega_min], [a_max, omega_max])`` of UAV ``uav`` (0-based)."""
+        lower, upper = self.control_lower, self.control_upper
+        if self.uav_accel_bounds is not None:
+            lower[0], upper[0] = self.uav_accel_bounds[uav]
+        if self.uav_turn_rate_bounds is not None:
+            lower[1], upper[1] = self.uav_turn_rate_bounds[uav]
+        return lower, upper
+
+    @property
+    def mixed_bounds(self) -> bool:
+        """Whether some UAV has bounds of its own."""
+        return self.uav_accel_bounds is not None or self.uav_turn_rate_bounds is not None
+
+    @property
+    def communication_faults(self) -> bool:
+        """Whether plans can be lost or late."""
+        return self.packet_loss > 0 or self.delay_steps > 0 or self.delay_jitter_steps > 0
+
+    @property
+    def disturbed(self) -> bool:
+        """Whether wind, measurement noise or model mismatch act on the run."""
+        return (
+            any(w != 0 for w in self.wind_mean_m_s)
+            or self.gust_std_m_s > 0
+            or self.position_noise_std_m > 0
+            or self.heading_noise_std_rad > 0
+            or self.speed_noise_std_m_s > 0
+            or self.plant_accel_gain != 1.0
+            or self.plant_turn_rate_gain != 1.0
+        )
 
     def initial_state_array(self) -> np.ndarray:
         """Initial states as an ``(N, 4)`` array."""
@@ -316,3 +487,7 @@ def get_scenario(name: str, /, **overrides: Any) -> Scenario:
         raise SCENARIOS.unknown(name)
     scenario = SCENARIOS[name]
     return scenario.with_overrides(**overrides) if overrides else scenario
+
+
+# the swarms are built from the formation library, which builds on Scenario: imported last
+from formation_bench.mpc import formations as _formations  # noqa: E402, F401

@@ -36,11 +36,20 @@ def tracking_condition(
     own_positions: np.ndarray,
     neighbour_positions: np.ndarray,
     reference: np.ndarray,
-    n_uav: int,
+    group_size: int,
     eps_o: float,
+    offset_sum: np.ndarray | None = None,
 ) -> bool:
-    """Eq. (16): the estimated formation centre is ``eps_o`` or more from the reference."""
-    centre = (own_positions + neighbour_positions.sum(axis=0)) / n_uav
+    """Eq. (16): the estimated formation centre is ``eps_o`` or more from the reference.
+
+    The centre is ``(p_i + sum_j p_hat_j) / group_size`` (eq. 16 with N_uav UAVs); with
+    ``offset_sum`` ``(L, 2)``, the group's summed desired offsets, it is estimated from the
+    UAV and its neighbours alone, ``(p_i + sum_j p_hat_j - offset_sum) / group_size``.
+    """
+    total = own_positions + neighbour_positions.sum(axis=0)
+    if offset_sum is not None:
+        total = total - offset_sum
+    centre = total / group_size
     return bool(np.any(np.linalg.norm(centre - reference, axis=-1) >= eps_o))
 
 

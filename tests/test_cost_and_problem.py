@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from formation_bench.mpc.cost import batch_cost, batch_cost_reference, block_map
+from formation_bench.mpc.cost import NO_PENALTIES, batch_cost, batch_cost_reference, block_map
 from formation_bench.mpc.model import REDUCTION_LIMIT, step_plant
 from formation_bench.mpc.problem import (
     LocalProblem,
@@ -86,7 +86,7 @@ def test_rotation_kernel_matches_reference_kernel(horizon, n_blocks, substeps, w
         )
         args = (state, block_map(horizon, n_blocks), 0.2, substeps, distance_targets,
                 centre_target, *weights)  # fmt: skip
-        rotated = batch_cost(decisions, *args)
+        rotated = batch_cost(decisions, *args, *NO_PENALTIES)
         plain = batch_cost_reference(decisions, *args)
         assert np.all(plain > 0)
         np.testing.assert_allclose(rotated, plain, rtol=1e-12, atol=0)
@@ -105,7 +105,7 @@ def test_rotation_kernel_matches_reference_at_large_headings(theta):
     state[2] = theta
     args = (state, block_map(20, 4), 0.2, 2, distance_targets, centre_target, 1.0, 0.5)
     np.testing.assert_allclose(
-        batch_cost(decisions, *args),
+        batch_cost(decisions, *args, *NO_PENALTIES),
         batch_cost_reference(decisions, *args),
         rtol=max(1e-12, float(np.spacing(abs(theta)))),
     )
@@ -137,7 +137,9 @@ def test_kernel_prediction_is_the_plant_to_the_bit(horizon, n_blocks, substeps, 
     for row, decision in enumerate(decisions):
         path = plant_path(state, decision, block_of_step, 0.2, substeps)
         targets = (np.ascontiguousarray(np.stack([path, path])), path)
-        costs = batch_cost(decisions, state, block_of_step, 0.2, substeps, *targets, 1.0, 0.3)
+        costs = batch_cost(
+            decisions, state, block_of_step, 0.2, substeps, *targets, 1.0, 0.3, *NO_PENALTIES
+        )
         assert costs[row] == 0.0
         others = np.delete(costs, row)
         assert np.all(others > 0)

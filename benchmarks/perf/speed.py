@@ -39,7 +39,7 @@ from formation_bench.benchmarks.instants import RecordedInstant, record_instants
 from formation_bench.benchmarks.perf.replay import replayed_objective_seconds, solve_batches
 from formation_bench.benchmarks.runner import execute, warm_up_kernels
 from formation_bench.benchmarks.spec import RunSpec
-from formation_bench.mpc.cost import batch_cost, batch_cost_reference
+from formation_bench.mpc.cost import NO_PENALTIES, batch_cost, batch_cost_reference
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import EvaluationCounter, ModifiedBSO, get_optimizer
 from formation_bench.optimizers.bso_ops import cluster_population
@@ -112,7 +112,7 @@ def kernel_comparison(
         calls.append((problem.bounds.sample(rng, population_size), args))
     max_rel = 0.0
     for x, args in calls:
-        old, new = batch_cost_reference(x, *args), batch_cost(x, *args)
+        old, new = batch_cost_reference(x, *args), batch_cost(x, *args, *NO_PENALTIES)
         max_rel = max(max_rel, float(np.max(np.abs(new - old) / np.abs(old))))
     load_before = os.getloadavg()
     per_evaluation = number * population_size * len(calls)
@@ -121,9 +121,10 @@ def kernel_comparison(
         totals = {batch_cost_reference: 0.0, batch_cost: 0.0}
         for x, args in calls:
             for kernel in totals:
+                kernel_args = args if kernel is batch_cost_reference else (*args, *NO_PENALTIES)
                 start = time.thread_time()
                 for _ in range(number):
-                    kernel(x, *args)
+                    kernel(x, *kernel_args)
                 totals[kernel] += time.thread_time() - start
         old_s.append(totals[batch_cost_reference] / per_evaluation)
         new_s.append(totals[batch_cost] / per_evaluation)

@@ -1,0 +1,76 @@
+"""What the world does that the prediction model does not: wind, measurement noise and
+model mismatch. They act on the plant and on what each UAV measures; the prediction model
+stays eq. (1).
+
+- **Wind** moves every UAV's position by the wind velocity, held over each period: a
+  constant part (``wind_mean_m_s``) plus each UAV's gusts, an Ornstein-Uhlenbeck process per
+  axis with stationary standard deviation ``gust_std_m_s`` and correlation time
+  ``gust_time_constant_s``, sampled exactly at the update instants and started from its
+  stationary distribution.
+- **Measurement noise**: each UAV solves from its own state plus independent normal noise
+  (``position_noise_std_m`` per axis, ``heading_noise_std_rad``, ``speed_noise_std_m_s``).
+- **Model mismatch**: the plant's acceleration and turn rate are ``plant_accel_gain`` and
+  ``plant_turn_rate_gain`` times the commanded ones.
+
+The wind and the noise have Generators of their own, drawn at every instant, so a seed's
+disturbances are the same for every optimiser.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from formation_bench.mpc.model import step_plant
+from formation_bench.mpc.scenario import Scenario
+
+
+class Disturbances:
+    """The plant side of a run: its step under wind and mismatch, and the noisy measurements."""
+
+    def __init__(
+        self, scenario: Scenario, wind_rng: np.random.Generator, noise_rng: np.random.Generator
+    ) -> None:
+        self.scenario = scenario
+        self.wind_rng = wind_rng
+        self.noise_rng = noise_rng
+        n_uav = scenario.n_uav
+        self.gusts = np.zeros((n_uav, 2))
+        if scenario.gust_std_m_s > 0:
+            self.gusts = wind_rng.normal(0.0, scenario.gust_std_m_s, size=(n_uav, 2))
+        self.noise_std = np.array(
+            [
+                scenario.position_noise_std_m,
+                scenario.position_noise_std_m,
+                scenario.heading_noise_std_rad,
+                scenario.speed_noise_std_m_s,
+            ]
+        )
+        self.gains = np.array([scenario.plant_accel_gain, scenario.plant_turn_rate_gain])
+
+    @property
+    def wind(self) -> np.ndarray:
+        """``(N, 2)`` wind velocity over the current period, m/s."""
+        return np.asarray(self.scenario.wind_mean_m_s, dtype=np.float64) + self.gusts
+
+    def measure(self, states: np.ndarray) -> np.ndarray:
+        """``(N, 4)``: the states as the UAVs measure them (``states`` itself without noise)."""
+        if not np.any(self.noise_std > 0):
+            return states
+        return states + self.noise_rng.normal(size=states.shape) * self.noise_std
+
+    def step(self, states: np.ndarray, controls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The plant's next states under ``controls`` (commanded), and the wind that acted."""
+        scenario = self.scenario
+        if np.any(self.gains != 1.0):
+            controls = controls * self.gains
+        following = step_plant(states, controls, scenario.period_s, scenario.rk4_substeps)
+        wind = self.wind
+        if np.any(wind != 0.0):
+            following[:, :2] += wind * scenario.period_s
+        if scenario.gust_std_m_s > 0:
+            decay = math.exp(-scenario.period_s / scenario.gust_time_constant_s)
+            spread = scenario.gust_std_m_s * math.sqrt(1.0 - decay * decay)
+            self.gusts = decay * self.gusts + spread * self.wind_rng.normal(size=self.gusts.shape)
+        return following, wind
