@@ -479,6 +479,17 @@ def register_scenario(scenario: Scenario) -> Scenario:
 register_scenario(PAPER)
 register_scenario(dataclasses.replace(PAPER, name="paper-straight", reference="straight"))
 register_scenario(dataclasses.replace(PAPER, name="paper-s-curve", reference="s-curve"))
+register_scenario(
+    dataclasses.replace(
+        PAPER,
+        name="paper-obstacles",
+        obstacles=((136.0, -4.0, 5.0), (392.0, 112.0, 5.0)),
+        w_obstacle=100.0,
+        w_collision=100.0,
+    )
+)
+"""The paper's scenario with two no-fly zones: one on the straight leg, on the reference
+centre's line (the trailing UAV's slot), one beside the turn; both penalties on."""
 
 
 def get_scenario(name: str, /, **overrides: Any) -> Scenario:
