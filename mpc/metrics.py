@@ -56,10 +56,19 @@ def pair_distance_errors(trace: Trace) -> np.ndarray:
     return np.abs(actual - desired)
 
 
+def listened(trace: Trace) -> np.ndarray:
+    """``(T, N, N)`` the trace's neighbour sets; every other UAV when it has none logged."""
+    n_steps, n_uav = trace.controls.shape[:2]
+    if trace.neighbours.shape == (n_steps, n_uav, n_uav):
+        return trace.neighbours
+    return np.broadcast_to(~np.eye(n_uav, dtype=bool), (n_steps, n_uav, n_uav))
+
+
 def graph_pairs(trace: Trace) -> np.ndarray:
     """``(T + 1, N, N)`` the pairs of the communication graph at every instant: i < j with i
     listening to j or j to i (the last instant keeps the graph of the one before)."""
-    links = trace.neighbours | np.transpose(trace.neighbours, (0, 2, 1))
+    neighbours = listened(trace)
+    links = neighbours | np.transpose(neighbours, (0, 2, 1))
     links = np.concatenate((links, links[-1:]))
     return np.triu(links, k=1)
 
@@ -401,7 +410,7 @@ def compute_metrics(trace: Trace) -> Metrics:
         collision_time_s=float(collisions.sum() * scenario.period_s),
         obstacle_intrusions=_events(intrusions),
         obstacle_time_s=float(intrusions.sum() * scenario.period_s),
-        plans_sent=int(np.sum(trace.solved[:, None, :] & trace.neighbours)),
+        plans_sent=int(np.sum(trace.solved[:, None, :] & listened(trace))),
         plans_lost=int(trace.plans_lost.sum()),
         plans_late=int(trace.plans_late.sum()),
         control_effort=tuple(float(e) for e in control_effort(trace)),
