@@ -183,12 +183,30 @@ def _summary(record: dict[str, Any]) -> str:
     distances = " ".join(
         f"{c.removeprefix('distance_error_max_m_')}={record[c]:.3f}" for c in pairs
     )
+    if not pairs:  # a swarm: summarised over the communication graph's pairs
+        distances = (
+            f"{record['distance_error_max_m_max']:.3f} (RMS {record['distance_error_rms_m']:.3f})"
+        )
     solves = [record[c] for c in record if c.startswith("solves_uav")]
+    if len(solves) > 5:
+        solves = f"{record['solves_total']} over {len(solves)} UAVs"
+    extras = []
+    if record["collisions"] or record["obstacle_intrusions"]:
+        extras.append(
+            f"collisions {record['collisions']}, obstacle intrusions "
+            f"{record['obstacle_intrusions']}, min separation {record['min_separation_m']:.2f} m"
+        )
+    if record["plans_lost"] or record["plans_late"]:
+        extras.append(
+            f"plans lost {record['plans_lost']} and late {record['plans_late']} "
+            f"of {record['plans_sent']}"
+        )
     return (
         f"{record['optimizer']} {record['scenario']} trigger={record['trigger']} "
         f"seed={record['seed']}: tracking max {record['tracking_error_max_m']:.3f} m, "
         f"distance error max {distances} m, solves {solves}, "
-        f"median solve {1e3 * record['solve_time_median_s']:.2f} ms, "
+        + "".join(f"{extra}, " for extra in extras)
+        + f"median solve {1e3 * record['solve_time_median_s']:.2f} ms, "
         f"wall {record['wall_time_s']:.1f} s"
     )
 
