@@ -70,8 +70,8 @@ def seed_column(seed: int, n_rows: int) -> pa.Array:
 def trace_frame(trace: Trace) -> pa.Table:
     """The trace as a long table: one row per instant (0..T) and UAV.
 
-    The last instant holds the final state only: its control and solve
-    columns are NaN / False.
+    The last instant holds the final state only: its control, solve, network and wind
+    columns are NaN / 0 / False.
     """
     import pyarrow as pa
 
@@ -88,6 +88,7 @@ def trace_frame(trace: Trace) -> pa.Table:
     controls = pad(trace.controls, np.nan)
     reasons = pad(trace.reasons, False)
     desired = (trace.reference[:, None, :] + trace.desired_offsets).reshape(-1, 2)
+    wind = pad(trace.wind, np.nan)
     n_rows = n_instants * n_uav
     columns = {
         "optimizer": text_column(trace.optimizer, n_rows),
@@ -118,6 +119,11 @@ def trace_frame(trace: Trace) -> pa.Table:
         "ref_heading_rad": np.repeat(trace.reference_heading, n_uav),
         "desired_x_m": desired[:, 0],
         "desired_y_m": desired[:, 1],
+        "neighbours": pad(trace.neighbours.sum(axis=2), 0).astype(np.int64),
+        "plans_lost": pad(trace.plans_lost, 0).astype(np.int64),
+        "plans_late": pad(trace.plans_late, 0).astype(np.int64),
+        "wind_x_m_s": wind[:, 0],
+        "wind_y_m_s": wind[:, 1],
     }
     table = pa.Table.from_arrays(
         [c if isinstance(c, pa.Array) else arrow_column(c) for c in columns.values()],

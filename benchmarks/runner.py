@@ -112,7 +112,11 @@ def trace_table(trace: Trace, spec: RunSpec) -> pa.Table:
 def write_figures(
     outcome: RunOutcome, out_dir: Path, suffix: str, fig_numbers: tuple[int, int]
 ) -> list[Path]:
-    """Trajectory and states figures of one run; returns the paths written."""
+    """Trajectory, states and separation figures of one run; returns the paths written.
+
+    The first two are numbered as the paper's (``fig3_trajectory_no_trigger.png``, ...); the
+    separation figure, which the paper has not, is ``separation_<suffix>.png``.
+    """
     from formation_bench.benchmarks.analysis import run_figures as figures  # when drawing
 
     scenario = outcome.trace.scenario
@@ -120,11 +124,14 @@ def write_figures(
     desired_by_name = {name: float(desired[i, j]) for name, i, j in pair_names(scenario.n_uav)}
     trajectory = out_dir / f"fig{fig_numbers[0]}_trajectory_{suffix}.png"
     states = out_dir / f"fig{fig_numbers[1]}_states_{suffix}.png"
-    figures.save(figures.trajectory_figure(outcome.frame), trajectory)
+    separation = out_dir / f"separation_{suffix}.png"
+    frame = outcome.frame
+    figures.save(figures.trajectory_figure(frame, scenario), trajectory)
     figures.save(
-        figures.states_figure(outcome.frame, desired_by_name, scenario.settle_time_s), states
+        figures.states_figure(frame, desired_by_name, scenario.settle_time_s, scenario), states
     )
-    return [trajectory, states]
+    figures.save(figures.separation_figure(frame, scenario), separation)
+    return [trajectory, states, separation]
 
 
 def write_trigger_figure(outcome: RunOutcome, out_dir: Path, name: str) -> Path:

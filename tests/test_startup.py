@@ -75,6 +75,7 @@ def test_run_with_figures_draws_them_without_seaborn(tmp_path):
         "fig5_trajectory_trigger.png",
         "fig6_states_trigger.png",
         "fig7_solve_instants_trigger.png",
+        "separation_trigger.png",
     ]
 
 
