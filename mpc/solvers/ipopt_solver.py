@@ -30,7 +30,6 @@ evaluations that compare the solution with the warm start. The Generator is
 not used.
 """
 
-
 from __future__ import annotations
 
 import enum
@@ -263,7 +262,7 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
         x0 = warm_start_of(problem, bounds, x0)
         start = time.perf_counter()
         shape = ProblemShape.of(problem)
-        params = pack_parameters(problem)
+        params = pack_parameters(problem, shape)
         n_states = STATE_DIM * shape.horizon_steps if self.shooting == Shooting.MULTIPLE else 0
         scenario = problem.scenario
         warm_states = numeric_rollout(
