@@ -19,6 +19,16 @@ in the deviation ``du = u - u0``:
     90: on the paper scenario OSQP needs a third of the iterations and the
     95th percentile of the solve time is 5-16 times lower (docs/gradient-baselines.md).
 
+The collision and obstacle penalties ``w * max(0, r - d)^2`` are not convex in the positions,
+and a QP cannot hold them. They enter by their Gauss-Newton model: with the residual
+``e = sqrt(delta_T * w) * max(0, r - d)``, the QP's Hessian gains ``2 J' J`` and its gradient
+``2 J' e`` (J = de/dp at the nominal positions), which is the penalty on the linearised
+distance of every term active along the nominal trajectory. The gradient is exact, the
+Hessian stays positive semidefinite, and terms inactive at the nominal (``d >= r``) do not
+enter that round's QP; the line search on the true cost below keeps a step into them from
+being accepted unless it still lowers the cost. With a penalty the sparse form's ``P``
+changes every instant too.
+
 Both are built from the CasADi expression of :mod:`formation_bench.mpc.solvers.casadi_model`
 (one call returns every matrix value and vector of an instant; the function is
 built once per problem shape). Each UAV's QP is set up in OSQP once and then
