@@ -9,19 +9,25 @@ once:
 - :func:`simpson_substep` is the RK4 step of :mod:`formation_bench.mpc.model` (zero-order hold,
   in its Simpson form: three sine/cosine pairs per sub-step);
 - :func:`stage_cost` is the integrand of eq. (14) **as printed** (the centre is
-  ``(p_i + sum_j p_hat_j) / N``), so it is a third, independent writing of the
-  cost beside the compiled :func:`formation_bench.mpc.cost.batch_cost` and the plain
+  ``(p_i + sum_j p_hat_j) / N``; off the complete graph ``(p_i + S) / M`` with the problem's
+  ``centre_group`` M and ``centre_neighbour_sum`` S), so it is a third, independent writing
+  of the cost beside the compiled :func:`formation_bench.mpc.cost.batch_cost` and the plain
   :func:`formation_bench.mpc.cost.reference_cost`; a test checks all three agree;
-- :func:`horizon_cost` sums it with the same right-endpoint rectangle rule.
+- :func:`penalty_terms` are the collision and obstacle penalties, ``w * max(0, r - d)^2``
+  with the exact distance ``d`` (the penalty is C1; its second derivative jumps where it
+  starts, and is undefined only at ``d = 0``);
+- :func:`horizon_cost` sums them with the same right-endpoint rectangle rule.
 
 The problem's numbers enter as one parameter vector (:func:`pack_parameters`):
 ``[state (4), neighbour_positions (J, H, 2), desired_relative (J, H, 2),
-reference (H, 2)]`` flattened in C order, so that a function built once per
-:class:`ProblemShape` serves every UAV at every instant.
+reference (H, 2)]`` flattened in C order, then S ``(H, 2)`` when the centre is estimated
+from the group and the obstacle rows ``(O, 3)`` when the obstacle penalty is on, so that a
+function built once per :class:`ProblemShape` serves every UAV at every instant.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -53,6 +59,11 @@ class SymbolicParameters:
     """``[j][k]``: desired ``p_i - p_j`` ``(2, 1)`` at step k + 1."""
     reference: list[ca.SX]
     """``[k]``: desired formation centre ``(2, 1)`` at step k + 1."""
+    centre_neighbour_sum: list[ca.SX] | None
+    """``[k]``: S ``(2, 1)`` with the centre ``(p_i + S) / M`` at step k + 1; None when the
+    model sums the neighbours' estimates itself (eq. (14)'s centre)."""
+    obstacles: list[ca.SX]
+    """``[o]``: ``(c_x, c_y, r)`` ``(3, 1)`` of obstacle o, r where its penalty starts."""
 
 
 def symbolic_parameters(shape: ProblemShape) -> SymbolicParameters:
@@ -75,7 +86,15 @@ def symbolic_parameters(shape: ProblemShape) -> SymbolicParameters:
     desired = block(offset)
     offset += 2 * n_nb * horizon
     reference = [p[offset + 2 * k : offset + 2 * k + 2] for k in range(horizon)]
-    return SymbolicParameters(p, p[:STATE_DIM], neighbours, desired, reference)
+    offset += 2 * horizon
+    centre_sum = None
+    if shape.group_centre:
+        centre_sum = [p[offset + 2 * k : offset + 2 * k + 2] for k in range(horizon)]
+        offset += 2 * horizon
+    obstacles = [p[offset + 3 * o : offset + 3 * o + 3] for o in range(shape.n_obstacles)]
+    return SymbolicParameters(
+        p, p[:STATE_DIM], neighbours, desired, reference, centre_sum, obstacles
+    )
 
 
 def simpson_substep(z: ca.SX, u: ca.SX, h: float) -> ca.SX:
@@ -122,25 +141,80 @@ def rollout(shape: ProblemShape, state: ca.SX, decision: ca.SX) -> list[ca.SX]:
 
 
 def stage_cost(shape: ProblemShape, position: ca.SX, params: SymbolicParameters, k: int) -> ca.SX:
-    """The integrand of eq. (14) at step k + 1, as printed.
+    """The integrand of eq. (14) at step k + 1, as printed, without the penalties.
 
     ``w_dst * sum_j ||p_i - p_hat_j - p_ij^d||^2 + w_trj * ||(p_i + sum_j p_hat_j) / N - p_c^d||^2``
+    on the complete graph (N = M = ``centre_group``); with the centre estimated from the
+    group, the centre is ``(p_i + S) / M``.
     """
     formation = 0
     centre = position
     for j in range(shape.n_neighbours):
         error = position - params.neighbour_positions[j][k] - params.desired_relative[j][k]
         formation = formation + ca.dot(error, error)
-        centre = centre + params.neighbour_positions[j][k]
-    tracking = centre / shape.n_uav - params.reference[k]
+        if params.centre_neighbour_sum is None:
+            centre = centre + params.neighbour_positions[j][k]
+    if params.centre_neighbour_sum is not None:
+        centre = centre + params.centre_neighbour_sum[k]
+    tracking = centre / shape.centre_group - params.reference[k]
     return shape.w_dst * formation + shape.w_trj * ca.dot(tracking, tracking)
 
 
-def horizon_cost(shape: ProblemShape, positions: list[ca.SX], params: SymbolicParameters) -> ca.SX:
-    """Eq. (14): the right-endpoint rectangle rule over steps 1..H."""
+def penalty_terms(
+    shape: ProblemShape, position: ca.SX, params: SymbolicParameters, k: int
+) -> list[tuple[float, ca.SX]]:
+    """``(weight, max(0, r - d))`` of every penalty term at step k + 1.
+
+    One per neighbour estimate when the collision penalty is on (r the safety radius), one
+    per obstacle when the obstacle penalty is on (r its radius plus margin); d is the exact
+    distance, written as :func:`formation_bench.mpc.cost.batch_cost` writes it.
+    """
+    terms = []
+    centres = []
+    if shape.w_collision > 0:
+        centres += [
+            (shape.w_collision, shape.safety_radius, params.neighbour_positions[j][k])
+            for j in range(shape.n_neighbours)
+        ]
+    centres += [(shape.w_obstacle, row[2], row[:2]) for row in params.obstacles]
+    for weight, radius, centre in centres:
+        dx = position[0] - centre[0]
+        dy = position[1] - centre[1]
+        terms.append((weight, ca.fmax(0.0, radius - ca.sqrt(dx * dx + dy * dy))))
+    return terms
+
+
+def penalty_residuals(
+    shape: ProblemShape, positions: list[ca.SX], params: SymbolicParameters
+) -> ca.SX:
+    """The residuals ``sqrt(delta_T * w) * max(0, r - d)`` of every penalty term over the
+    horizon: the penalties of :func:`horizon_cost` are their sum of squares."""
+    residuals = [
+        math.sqrt(shape.period_s * weight) * gap
+        for k, position in enumerate(positions)
+        for weight, gap in penalty_terms(shape, position, params, k)
+    ]
+    return ca.vertcat(*residuals) if residuals else ca.SX(0, 1)
+
+
+def horizon_cost(
+    shape: ProblemShape,
+    positions: list[ca.SX],
+    params: SymbolicParameters,
+    penalties: bool = True,
+) -> ca.SX:
+    """Eq. (14) plus the shape's penalties: the right-endpoint rectangle rule over steps 1..H.
+
+    ``penalties=False`` leaves the penalties out (eq. (14)'s terms alone, quadratic in the
+    positions).
+    """
     total = 0
     for k, position in enumerate(positions):
-        total = total + shape.period_s * stage_cost(shape, position, params, k)
+        stage = stage_cost(shape, position, params, k)
+        if penalties and shape.penalised:
+            for weight, gap in penalty_terms(shape, position, params, k):
+                stage = stage + weight * gap * gap
+        total = total + shape.period_s * stage
     return total
 
 
@@ -158,7 +232,7 @@ def casadi_cost(problem: LocalProblem, decisions: np.ndarray) -> np.ndarray:
     shape = ProblemShape.of(problem)
     decisions = np.atleast_2d(np.asarray(decisions, dtype=np.float64))
     function = cost_function(shape).map(decisions.shape[0])
-    params = pack_parameters(problem)
+    params = pack_parameters(problem, shape)
     values = function(decisions.T, np.tile(params[:, None], (1, decisions.shape[0])))
     return np.asarray(values, dtype=np.float64).reshape(-1)
 
@@ -185,7 +259,7 @@ def projected_gradient(problem: LocalProblem, decision: np.ndarray, tol: float) 
     multiplier absorbs the rest.
     """
     shape = ProblemShape.of(problem)
-    _, gradient = gradient_function(shape)(decision, pack_parameters(problem))
+    _, gradient = gradient_function(shape)(decision, pack_parameters(problem, shape))
     gradient = np.asarray(gradient, dtype=np.float64).reshape(-1)
     lower, upper, width = problem.bounds.lower, problem.bounds.upper, problem.bounds.width
     at_lower = decision - lower <= tol * width

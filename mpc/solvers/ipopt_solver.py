@@ -1,11 +1,13 @@
 """``ipopt``: the per-UAV problem of eq. (14) solved by IPOPT through CasADi's ``nlpsol``.
 
 The decision vector and bounds are those the population optimisers search
-(``[a_1, omega_1, ..., a_B, omega_B]`` in the control box). The problem is
-written once in CasADi symbols (:mod:`formation_bench.mpc.solvers.casadi_model`) with the
-instant's numbers (state, neighbour estimates, desired offsets, reference) as
+(``[a_1, omega_1, ..., a_B, omega_B]`` in the UAV's control box, ``problem.bounds``). The
+problem is written once in CasADi symbols (:mod:`formation_bench.mpc.solvers.casadi_model`)
+with the instant's numbers (state, neighbour estimates, desired offsets, reference) as
 parameters, handed to ``nlpsol`` once per problem shape, and re-used at every
-instant and by every UAV. Two transcriptions:
+instant and by every UAV. The collision and obstacle penalties are in the NLP exactly, with
+the exact distance (``max(0, r - d)^2`` is C1; IPOPT gets its exact Hessian, which jumps where
+a penalty starts). Two transcriptions:
 
 - ``single`` shooting: the states are eliminated; IPOPT sees ``2 B`` box-bounded
   variables and no constraints;
@@ -29,7 +31,6 @@ constraints, their Jacobian, the Lagrangian Hessian) plus the two compiled
 evaluations that compare the solution with the warm start. The Generator is
 not used.
 """
-
 
 from __future__ import annotations
 
@@ -263,7 +264,7 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
         x0 = warm_start_of(problem, bounds, x0)
         start = time.perf_counter()
         shape = ProblemShape.of(problem)
-        params = pack_parameters(problem)
+        params = pack_parameters(problem, shape)
         n_states = STATE_DIM * shape.horizon_steps if self.shooting == Shooting.MULTIPLE else 0
         scenario = problem.scenario
         warm_states = numeric_rollout(

@@ -19,6 +19,16 @@ in the deviation ``du = u - u0``:
     90: on the paper scenario OSQP needs a third of the iterations and the
     95th percentile of the solve time is 5-16 times lower (docs/gradient-baselines.md).
 
+The collision and obstacle penalties ``w * max(0, r - d)^2`` are not convex in the positions,
+and a QP cannot hold them. They enter by their Gauss-Newton model: with the residual
+``e = sqrt(delta_T * w) * max(0, r - d)``, the QP's Hessian gains ``2 J' J`` and its gradient
+``2 J' e`` (J = de/dp at the nominal positions), which is the penalty on the linearised
+distance of every term active along the nominal trajectory. The gradient is exact, the
+Hessian stays positive semidefinite, and terms inactive at the nominal (``d >= r``) do not
+enter that round's QP; the line search on the true cost below keeps a step into them from
+being accepted unless it still lowers the cost. With a penalty the sparse form's ``P``
+changes every instant too.
+
 Both are built from the CasADi expression of :mod:`formation_bench.mpc.solvers.casadi_model`
 (one call returns every matrix value and vector of an instant; the function is
 built once per problem shape). Each UAV's QP is set up in OSQP once and then
@@ -44,7 +54,6 @@ cost, its gradient and the Jacobians in one CasADi evaluation) plus every row
 of the compiled cost (the warm start and the line-search points); OSQP's own
 iterations are in ``info``. The Generator is not used.
 """
-
 
 from __future__ import annotations
 
@@ -79,6 +88,7 @@ if TYPE_CHECKING:  # casadi, osqp and scipy.sparse are imported when a solver is
     import scipy.sparse as sp
 
     from formation_bench.mpc.problem import LocalProblem
+    from formation_bench.mpc.solvers.casadi_model import SymbolicParameters
 
 LINE_SEARCH_STEPS = np.array([1.0, 0.5, 0.25])
 """Step lengths tried along each QP direction (one batch evaluation of the true cost)."""
@@ -99,9 +109,14 @@ class LtvFunctions:
 
     form: QPForm
     linearise: ca.Function
-    """``(u0, p) -> (matrix values, q)``: A's nonzeros (sparse) or P's (condensed)."""
+    """``(u0, p) -> (*matrix values, q)``: the nonzeros of the matrices named in
+    :attr:`changing`, in that order, then ``q``."""
+    changing: tuple[str, ...]
+    """The matrices whose values change every instant, as ``OSQP.update`` names them: ``Px``
+    (condensed), ``Ax`` (sparse), ``Ax`` and ``Px`` (sparse with a penalty)."""
     P: sp.csc_matrix
-    """P with its fixed pattern (upper triangle); constant for the sparse form."""
+    """P with its fixed pattern (upper triangle); constant for the sparse form without
+    penalties."""
     A: sp.csc_matrix
     """A with its fixed pattern; constant (the identity) for the condensed form."""
     n_dynamics_rows: int
@@ -109,6 +124,26 @@ class LtvFunctions:
     dim: int
     """Length of ``du``: the first variables of the QP."""
     build_time_s: float
+
+    def evaluate(
+        self, u0: np.ndarray, params: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """The changing matrix values by ``OSQP.update`` name, and ``q``, of the QP about ``u0``."""
+        outputs = self.linearise(u0, params)
+        matrices = {
+            name: np.asarray(values, dtype=np.float64).reshape(-1)
+            for name, values in zip(self.changing, outputs[:-1], strict=True)
+        }
+        return matrices, np.asarray(outputs[-1], dtype=np.float64).reshape(-1)
+
+    def matrices(self, values: dict[str, np.ndarray]) -> tuple[sp.csc_matrix, sp.csc_matrix]:
+        """``P`` and ``A`` with their changing values set to ``values``."""
+        P, A = self.P.copy(), self.A.copy()
+        if "Px" in values:
+            P.data = np.array(values["Px"], dtype=np.float64)
+        if "Ax" in values:
+            A.data = np.array(values["Ax"], dtype=np.float64)
+        return P, A
 
     def bounds_vectors(self, bounds: Bounds, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``l`` and ``u`` of an instant: zero on the dynamics rows, the shifted box on ``du``."""
@@ -148,6 +183,29 @@ def _upper_dense(matrix: ca.SX) -> tuple[ca.SX, np.ndarray, np.ndarray]:
     return ca.vertcat(*entries), np.asarray(rows), np.asarray(colind)
 
 
+def _gauss_newton(
+    shape: ProblemShape, positions: list[ca.SX], params: SymbolicParameters, variables: ca.SX
+) -> tuple[ca.SX, ca.SX]:
+    """Hessian and gradient in ``variables`` of the cost with the penalties' Gauss-Newton model.
+
+    Eq. (14)'s terms are quadratic in the positions: their Hessian is exact. Each penalty
+    ``e^2``, ``e = sqrt(delta_T * w) * max(0, r - d)``, enters with ``2 J' J`` (J the Jacobian
+    of e): its curvature term ``2 e d2e``, negative across the distance, is dropped so that P
+    stays positive semidefinite. The gradient ``2 J' e`` is exact, so the QP's model agrees
+    with the cost in value and slope at the linearisation point; terms inactive there
+    (``d >= r``) have ``J = 0`` and do not enter the QP.
+    """
+    import casadi as ca
+
+    from formation_bench.mpc.solvers.casadi_model import horizon_cost, penalty_residuals
+
+    quadratic = horizon_cost(shape, positions, params, penalties=False)
+    hessian, gradient = ca.hessian(quadratic, variables)
+    residuals = penalty_residuals(shape, positions, params)
+    jacobian = ca.jacobian(residuals, variables)
+    return hessian + 2 * (jacobian.T @ jacobian), gradient + 2 * (jacobian.T @ residuals)
+
+
 def build_functions(shape: ProblemShape, form: QPForm) -> LtvFunctions:
     """Linearisation function and QP patterns of ``shape`` in ``form``."""
     import casadi as ca
@@ -180,40 +238,55 @@ def build_functions(shape: ProblemShape, form: QPForm) -> LtvFunctions:
         variables = ca.vertcat(u, ca.vec(x))
         rows = ca.vertcat(*gaps, u)  # dynamics gaps, then the box rows on u
         jacobian = ca.jacobian(rows, variables)
-        cost = horizon_cost(shape, [x[:2, k] for k in range(horizon)], params)
-        hessian, gradient = ca.hessian(cost, variables)
-        if ca.depends_on(hessian, ca.vertcat(variables, params.vector)):
-            raise AssertionError("the cost of eq. (14) must be quadratic in the positions")
-        upper = ca.triu(hessian)
-        P = _csc(upper, np.asarray(ca.Function("P", [], [upper])()["o0"].nonzeros()))
-        # evaluate the Jacobian and the gradient along the nominal trajectory of u
-        at_nominal = ca.Function(
-            "at", [u, x, params.vector], [ca.vertcat(*jacobian.nonzeros()), ca.densify(gradient)]
-        )
-        a_values, q = at_nominal(u, ca.horzcat(*nominal), params.vector)
+        positions = [x[:2, k] for k in range(horizon)]
+        if shape.penalised:
+            hessian, gradient = _gauss_newton(shape, positions, params, variables)
+            upper = ca.triu(hessian)
+            P = _csc(upper, np.ones(upper.nnz()))
+            changing: tuple[str, ...] = ("Ax", "Px")
+            outputs = [ca.vertcat(*jacobian.nonzeros()), ca.vertcat(*upper.nonzeros())]
+        else:
+            cost = horizon_cost(shape, positions, params)
+            hessian, gradient = ca.hessian(cost, variables)
+            if ca.depends_on(hessian, ca.vertcat(variables, params.vector)):
+                raise AssertionError("the cost of eq. (14) must be quadratic in the positions")
+            upper = ca.triu(hessian)
+            P = _csc(upper, np.asarray(ca.Function("P", [], [upper])()["o0"].nonzeros()))
+            changing = ("Ax",)
+            outputs = [ca.vertcat(*jacobian.nonzeros())]
+        # evaluate the Jacobian, the gradient (and P) along the nominal trajectory of u
+        at_nominal = ca.Function("at", [u, x, params.vector], [*outputs, ca.densify(gradient)])
+        values = at_nominal(u, ca.horzcat(*nominal), params.vector)
         linearise = ca.Function(
-            "ltv_sparse", [u, params.vector], [a_values, q], ["u0", "p"], ["Ax", "q"]
+            "ltv_sparse", [u, params.vector], list(values), ["u0", "p"], [*changing, "q"]
         )
         A = _csc(jacobian, np.ones(jacobian.nnz()))
         n_dynamics_rows = STATE_DIM * horizon
     else:
         positions = ca.vertcat(*[z[:2] for z in nominal])
         p_sym = ca.SX.sym("pos", 2, horizon)
-        cost = horizon_cost(shape, [p_sym[:, k] for k in range(horizon)], params)
-        hessian_p, gradient_p = ca.hessian(cost, ca.vec(p_sym))
+        p_columns = [p_sym[:, k] for k in range(horizon)]
+        if shape.penalised:
+            hessian_p, gradient_p = _gauss_newton(shape, p_columns, params, ca.vec(p_sym))
+        else:
+            cost = horizon_cost(shape, p_columns, params)
+            hessian_p, gradient_p = ca.hessian(cost, ca.vec(p_sym))
         sensitivity = ca.jacobian(positions, u)
         at = ca.Function("at", [ca.vec(p_sym), params.vector], [hessian_p, gradient_p])
         h_val, g_val = at(positions, params.vector)
         p_matrix = sensitivity.T @ h_val @ sensitivity
         p_values, p_rows, p_colind = _upper_dense(p_matrix)
         q = sensitivity.T @ g_val
+        changing = ("Px",)
         linearise = ca.Function(
             "ltv_condensed", [u, params.vector], [p_values, ca.densify(q)], ["u0", "p"], ["Px", "q"]
         )
         P = sp.csc_matrix((np.ones(len(p_rows)), p_rows, p_colind), shape=(dim, dim))
         A = sp.csc_matrix(sp.identity(dim, format="csc"))
         n_dynamics_rows = 0
-    return LtvFunctions(form, linearise, P, A, n_dynamics_rows, dim, time.perf_counter() - start)
+    return LtvFunctions(
+        form, linearise, changing, P, A, n_dynamics_rows, dim, time.perf_counter() - start
+    )
 
 
 @dataclass
@@ -289,7 +362,7 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
     def _setup(
         self,
         functions: LtvFunctions,
-        matrix_values: np.ndarray,
+        matrix_values: dict[str, np.ndarray],
         q: np.ndarray,
         lower: np.ndarray,
         upper: np.ndarray,
@@ -297,11 +370,7 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
         import osqp
 
         start = time.perf_counter()
-        P, A = functions.P.copy(), functions.A.copy()
-        if functions.form == QPForm.SPARSE:
-            A.data = np.array(matrix_values, dtype=np.float64)
-        else:
-            P.data = np.array(matrix_values, dtype=np.float64)
+        P, A = functions.matrices(matrix_values)
         solver = osqp.OSQP()
         solver.setup(P, q, A, lower, upper, **self.settings())
         return _UavSolver(solver, time.perf_counter() - start)
@@ -325,7 +394,7 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
         start = time.perf_counter()
         shape = ProblemShape.of(problem)
         functions = self.functions(shape)
-        params = pack_parameters(problem)
+        params = pack_parameters(problem, shape)
         # This UAV's OSQP instance carries its warm start and step size from call to call. It is
         # kept only when this call continues the plan the previous call returned (same run,
         # same UAV); otherwise a fresh one is set up, so a run never depends on earlier runs.
@@ -350,23 +419,21 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
         nit = 0
         failed = False
         for round_ in range(rounds):
-            left_s = None if budget.deadline_s is None else budget.deadline_s - (
-                time.perf_counter() - start
+            left_s = (
+                None
+                if budget.deadline_s is None
+                else budget.deadline_s - (time.perf_counter() - start)
             )
             if left_s is not None and left_s <= 0 and round_ > 0:
                 message = f"deadline reached after {round_} rounds"
                 break
-            matrix_values, q = functions.linearise(current, params)
-            matrix_values = np.asarray(matrix_values, dtype=np.float64).reshape(-1)
-            q = np.asarray(q, dtype=np.float64).reshape(-1)
+            matrix_values, q = functions.evaluate(current, params)
             nfev += 1
             lower, upper = functions.bounds_vectors(bounds, current)
             if entry is None:
                 entry = self._setup(functions, matrix_values, q, lower, upper)
-            elif functions.form == QPForm.SPARSE:
-                entry.solver.update(q=q, l=lower, u=upper, Ax=matrix_values)
             else:
-                entry.solver.update(q=q, l=lower, u=upper, Px=matrix_values)
+                entry.solver.update(q=q, l=lower, u=upper, **matrix_values)
             if left_s is not None:
                 # OSQP stops at its time limit (0 disables it) with the status saying so
                 entry.solver.update_settings(time_limit=max(left_s, 1e-6))
@@ -432,13 +499,9 @@ def qp_data(
     optimizer: LtvOsqpOptimizer, problem: LocalProblem, u0: np.ndarray
 ) -> tuple[sp.csc_matrix, np.ndarray, sp.csc_matrix, np.ndarray, np.ndarray]:
     """``(P, q, A, l, u)`` of the QP the optimiser poses at ``u0`` (for tests and docs)."""
-    functions = optimizer.functions(ProblemShape.of(problem))
-    matrix_values, q = functions.linearise(u0, pack_parameters(problem))
-    P, A = functions.P.copy(), functions.A.copy()
-    values = np.asarray(matrix_values, dtype=np.float64).reshape(-1)
-    if functions.form == QPForm.SPARSE:
-        A.data = values
-    else:
-        P.data = values
+    shape = ProblemShape.of(problem)
+    functions = optimizer.functions(shape)
+    matrix_values, q = functions.evaluate(u0, pack_parameters(problem, shape))
+    P, A = functions.matrices(matrix_values)
     lower, upper = functions.bounds_vectors(problem.bounds, u0)
-    return P, np.asarray(q, dtype=np.float64).reshape(-1), A, lower, upper
+    return P, q, A, lower, upper
