@@ -14,7 +14,10 @@ each reported on its own. Within a block, for every metric:
 
 Files written to the report folder: ``report.md``, ``summary.csv``,
 ``wilcoxon.csv``, ``friedman.csv``, ``ranks.csv``, ``nemenyi.csv`` and
-``figures/*.png`` (metric distributions, solve-time ECDFs, trigger counts).
+``figures/*.png`` (metric distributions, solve-time ECDFs, trigger counts). Results that
+vary the number of UAVs or the graph, disturb the runs or set obstacles and penalties get the
+sections of :mod:`~formation_bench.benchmarks.analysis.suite_sections` too (``swarm.md``,
+``robustness.md``, ``obstacles.md``, their CSV files and figures).
 """
 
 from __future__ import annotations
@@ -468,6 +471,12 @@ def make_report(
     markdown = to_markdown(report, results, title=title)
     if paper_budget.applies(results):
         markdown += "\n" + write_paper_budget(results, folder)
+    # imported here: the sections module builds on this one
+    from formation_bench.benchmarks.analysis.suite_sections import write_sections
+
+    suite_sections = write_sections(results, folder, figures=figures)
+    if suite_sections:
+        markdown += "\n" + suite_sections + "\n"
     markdown += repeat_section(results)
     (folder / "report.md").write_text(markdown)
     for name, reason in NOT_APPLICABLE.items():
