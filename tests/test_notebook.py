@@ -1,6 +1,6 @@
 """The analysis notebook runs top to bottom on results the test makes, headless.
 
-Miniature versions of the four suites (tests/data/notebook/*.toml: 30 instants,
+Miniature versions of the seven suites (tests/data/notebook/*.toml: 30 instants,
 3 seeds, small budgets) are swept into a temporary folder, then the notebook
 is executed with nbclient on the venv's ``python3`` kernel with MPLBACKEND=Agg.
 """
@@ -19,7 +19,7 @@ from formation_bench.benchmarks.experiments.suite import load_suite
 from formation_bench.benchmarks.experiments.sweep import run_sweep
 
 ROOT = Path(__file__).parents[1]
-SUITES = ("paper", "ablation", "comparison", "trigger")
+SUITES = ("paper", "ablation", "comparison", "trigger", "swarm", "robustness", "obstacles")
 
 
 @pytest.fixture(scope="module")
@@ -59,13 +59,17 @@ def test_notebook_executes_on_stored_results(results_dir, tmp_path, monkeypatch)
     assert not [out for out in outputs if out.output_type == "error"]
     images = [out for out in outputs if "image/png" in out.get("data", {})]
     # Figs. 3-7 (5), four comparison distributions (steady state, two errors, transient),
-    # ECDF, solves, ablation distribution, convergence, trigger trade-off
-    assert len(images) == 14
+    # ECDF, solves, ablation distribution, convergence, trigger trade-off; two metrics
+    # against N, one against the disturbance level, the separation figure
+    assert len(images) == 18
     assert all(len(base64.b64decode(out["data"]["image/png"])) > 5_000 for out in images)
     sentences = [
         out["data"]["text/markdown"] for out in outputs if "text/markdown" in out.get("data", {})
     ]
-    assert any(s.startswith("Loaded 30 runs") for s in sentences)
+    # 6 paper + 9 ablation + 9 comparison + 6 trigger + 18 swarm + 18 robustness + 12 obstacles
+    assert any(s.startswith("Loaded 78 runs") for s in sentences)
+    for heading in ("## Swarm:", "## Robustness:", "## Obstacles:"):
+        assert any(s.startswith(heading) for s in sentences)
     assert not any("skipped" in s for s in sentences)
     assert not any("nan" in s for s in sentences)
 
@@ -85,6 +89,19 @@ def test_analysis_helpers_on_the_stored_results(results_dir):
         pd.concat([analysis.suite_runs(results, "trigger"), paper[~paper["trigger"]]])
     )
     assert sorted(tradeoff["threshold_m"].unique()) == [0.0, 1.0, 4.0]
+    swarm = analysis.scenario_section(analysis.suite_runs(results, "swarm"), "swarm")
+    assert set(swarm.table["n_uav"]) == {3, 5}
+    # the sentence quotes the table's medians on the complete graph
+    text = analysis.swarm_sentence(swarm)
+    rows = swarm.table[
+        (swarm.table["metric"] == "tracking_error_max_m") & (swarm.table["graph"] == "complete")
+    ]
+    assert all(f"{v:.3g}" in text for v in rows["median"])
+    assert analysis.scenario_section(paper, "swarm") is None
+    robustness = analysis.scenario_section(analysis.suite_runs(results, "robustness"), "robustness")
+    assert " of 4 (level, optimiser, trigger) cells" in analysis.robustness_sentence(robustness)
+    obstacles = analysis.scenario_section(analysis.suite_runs(results, "obstacles"), "obstacles")
+    assert analysis.obstacles_sentence(obstacles).count("paper-obstacles with penalties") == 4
 
 
 def test_paper_sentence_counts_holds():

@@ -21,6 +21,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 import seaborn as sns
+from matplotlib.ticker import LogFormatter
 
 # the figures of one run are drawn without seaborn; re-exported so that every figure is here
 from formation_bench.benchmarks.analysis.run_figures import (  # noqa: F401
@@ -97,6 +98,11 @@ METRIC_LABELS = {
     "solves_total": "solves per run, all UAVs",
     "solve_time_median_s": "median solve time (s)",
     "nfev_total": "objective evaluations per run",
+    "distance_error_rms_m": "distance error RMS, graph pairs (m)",
+    "collisions": "collisions per run (pairs within the safety radius)",
+    "collision_time_s": "time pairs spent within the safety radius (s)",
+    "obstacle_intrusions": "obstacle intrusions per run",
+    "obstacle_time_s": "time UAVs spent inside obstacles (s)",
 }
 """Axis labels, with units, of the headline metrics."""
 
@@ -381,4 +387,190 @@ def trigger_tradeoff_figure(frame: pd.DataFrame) -> plt.Figure:
         ax.set_ylabel(METRIC_LABELS[metric])
         ax.legend(title="eps_p = eps_O (m); 0 = no trigger", fontsize=8, title_fontsize=8)
     fig.suptitle("Trigger trade-off: solves saved against accuracy", fontsize=11)
+    return fig
+
+
+# --- figures of the suites beyond the paper's scenario --------------------------------------
+# Their frames carry what each run's scenario is (n_uav, graph, family, penalties, ...), as
+# formation_bench.benchmarks.analysis.suite_sections.scenario_columns adds it.
+
+
+def _log_if_spread(ax: plt.Axes, values: pd.Series) -> None:
+    """A log axis when every value is positive and they spread over more than 20x."""
+    values = values.dropna()
+    if len(values) and values.min() > 0 and values.max() > 20 * values.min():
+        ax.set_yscale("log")
+        # 0.2, 1, 50 rather than 2 x 10^-1; minor ticks labelled only over few decades
+        ax.yaxis.set_major_formatter(LogFormatter())
+        ax.yaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False))
+
+
+def metric_vs_n_figure(
+    frame: pd.DataFrame, metric: str, hue: str = "optimizer", panel: str = "graph"
+) -> plt.Figure:
+    """Median (line) and quartiles (band) of ``metric`` over the seeds against the number of
+    UAVs, one line per level of ``hue``, one panel per ``panel`` (the complete graph first)."""
+    sns.set_theme(style="whitegrid")
+    data = frame.dropna(subset=[metric])
+    panels = sorted(data[panel].unique(), key=lambda g: (g != "complete", str(g)))
+    order = sorted(data[hue].unique(), key=str)
+    fig, axes = plt.subplots(
+        1,
+        len(panels),
+        figsize=(4.4 * len(panels), 4.2),
+        squeeze=False,
+        sharey=True,
+        constrained_layout=True,
+    )
+    for ax, value in zip(axes[0], panels, strict=True):
+        sns.lineplot(
+            data=data[data[panel] == value],
+            x="n_uav",
+            y=metric,
+            hue=hue,
+            hue_order=order,
+            estimator="median",
+            errorbar=("pi", 50),
+            marker="o",
+            ax=ax,
+            legend=ax is axes[0][-1],
+        )
+        ax.set_xticks(sorted(data["n_uav"].unique()))
+        ax.set_xlabel("UAVs (N)")
+        ax.set_ylabel(label(metric))
+        ax.set_title(f"{panel}: {value}", fontsize=10)
+    _log_if_spread(axes[0][0], data[metric])
+    if axes[0][-1].get_legend() is not None:
+        sns.move_legend(axes[0][-1], "upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
+    fig.suptitle("median over the seeds, band: quartiles", fontsize=10)
+    return fig
+
+
+def metric_vs_level_figure(frame: pd.DataFrame, metric: str, hue: str = "optimizer") -> plt.Figure:
+    """Median and quartiles of ``metric`` over the seeds at every disturbance level, one panel
+    per family (the nominal level first in each) and trigger setting, one colour per ``hue``."""
+    sns.set_theme(style="whitegrid")
+    data = frame.dropna(subset=[metric])
+    nominal = list(dict.fromkeys(data.loc[data["family"] == "nominal", "scenario"]))
+    levels = data[data["family"] != "nominal"].sort_values("level_order", kind="stable")
+    families = list(dict.fromkeys(levels["family"]))
+    triggers = sorted(data["trigger"].unique(), key=str, reverse=True)  # "on" first
+    order = sorted(data[hue].unique(), key=str)
+    widths = [
+        len(nominal) + levels.loc[levels["family"] == f, "scenario"].nunique() for f in families
+    ]
+    fig, axes = plt.subplots(
+        len(triggers),
+        len(families),
+        figsize=(1.1 * sum(widths) + 3, 3.8 * len(triggers)),
+        squeeze=False,
+        sharey="row",
+        gridspec_kw={"width_ratios": widths},
+        constrained_layout=True,
+    )
+    for row, trigger in enumerate(triggers):
+        for col, family in enumerate(families):
+            ax = axes[row][col]
+            shown = nominal + list(
+                dict.fromkeys(levels.loc[levels["family"] == family, "scenario"])
+            )
+            part = data[(data["trigger"] == trigger) & data["scenario"].isin(shown)]
+            sns.pointplot(
+                data=part,
+                x="scenario",
+                y=metric,
+                hue=hue,
+                order=shown,
+                hue_order=order,
+                estimator="median",
+                errorbar=("pi", 50),
+                dodge=0.4,
+                markersize=4,
+                linewidth=1.2,
+                ax=ax,
+                legend=row == 0 and col == len(families) - 1,
+            )
+            ax.set_title(f"{family}, trigger {trigger}", fontsize=10)
+            ax.set_xlabel("")
+            ax.set_ylabel(label(metric) if col == 0 else "")
+            ax.tick_params(axis="x", rotation=35)
+            for tick in ax.get_xticklabels():
+                tick.set_horizontalalignment("right")
+        # one scale for every row, so that the trigger settings compare at a glance
+        _log_if_spread(axes[row][0], data[metric])
+    if axes[0][-1].get_legend() is not None:
+        sns.move_legend(axes[0][-1], "upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
+    fig.suptitle("median over the seeds, bars: quartiles", fontsize=10)
+    return fig
+
+
+def separation_figure(
+    frame: pd.DataFrame,
+    metrics: tuple[str, ...] = ("min_separation_m", "collisions", "obstacle_intrusions"),
+    hue: str = "optimizer",
+) -> plt.Figure:
+    """Box and strip plots of ``metrics`` per scenario and penalty setting, one colour per
+    ``hue``; the smallest-separation panel marks the safety radius."""
+    sns.set_theme(style="whitegrid")
+    penalties = frame["penalties"].where(frame["penalties"] != "off", "no penalty")
+    data = frame.assign(condition=frame["scenario_name"].astype(str) + "\n" + penalties)
+    data = data.sort_values(
+        ["scenario_name", "penalties"],
+        key=lambda c: c.eq("off") if c.name == "penalties" else c,
+        kind="stable",
+    )
+    shown = [m for m in metrics if m in data.columns]
+    conditions = list(dict.fromkeys(data["condition"]))
+    order = sorted(data[hue].unique(), key=str)
+    fig, axes = plt.subplots(
+        1,
+        len(shown),
+        figsize=(max(4.5, 1.5 * len(conditions)) * len(shown), 4.6),
+        squeeze=False,
+        constrained_layout=True,
+    )
+    for ax, metric in zip(axes[0], shown, strict=True):
+        sns.boxplot(
+            data=data,
+            x="condition",
+            y=metric,
+            hue=hue,
+            order=conditions,
+            hue_order=order,
+            showfliers=False,
+            saturation=1.0,
+            ax=ax,
+            legend=ax is axes[0][-1],
+        )
+        sns.stripplot(
+            data=data,
+            x="condition",
+            y=metric,
+            hue=hue,
+            order=conditions,
+            hue_order=order,
+            dodge=True,
+            size=3.5,
+            edgecolor="#1f3b5a",
+            linewidth=0.5,
+            ax=ax,
+            legend=False,
+        )
+        if metric == "min_separation_m" and "safety_radius_m" in data:
+            for radius in sorted(data["safety_radius_m"].dropna().unique()):
+                ax.axhline(radius, color="#b03a2e", lw=1, ls="--")
+                ax.annotate(
+                    f"safety radius {radius:g} m",
+                    (0.01, radius),
+                    xycoords=("axes fraction", "data"),
+                    fontsize=8,
+                    color="#b03a2e",
+                    va="bottom",
+                )
+        ax.set_xlabel("")
+        ax.set_ylabel(label(metric))
+        ax.tick_params(axis="x", labelsize=8)
+    if axes[0][-1].get_legend() is not None:
+        sns.move_legend(axes[0][-1], "upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
+    fig.suptitle("one point per run; boxes: quartiles and median", fontsize=10)
     return fig

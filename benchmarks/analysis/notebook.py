@@ -16,6 +16,7 @@ import pandas as pd
 
 from formation_bench.benchmarks.analysis.figures import METRIC_LABELS
 from formation_bench.benchmarks.analysis.paper import PAPER_FIGURES
+from formation_bench.benchmarks.analysis.suite_sections import Section, sections
 from formation_bench.benchmarks.experiments.store import load_results, load_traces
 from formation_bench.benchmarks.instants import record_instants
 from formation_bench.mpc.scenario import get_scenario
@@ -267,3 +268,97 @@ def solves_sentence(results: pd.DataFrame) -> str:
             text += f"{',' if np.isfinite(on) else ''} {off:.0f} without"
         parts.append(text)
     return "Median solves per run (all UAVs): " + "; ".join(parts) + "."
+
+
+# --- the suites beyond the paper's scenario --------------------------------------------------
+
+
+def scenario_section(runs: pd.DataFrame, name: str) -> Section | None:
+    """The report section ``name`` (``swarm``, ``robustness`` or ``obstacles``) of ``runs``,
+    or None when it does not apply to them (or there are none)."""
+    if runs.empty:
+        return None
+    return next((s for s in sections(runs) if s.name == name), None)
+
+
+def _medians(section: Section, metric: str, *, one_setting: bool) -> pd.DataFrame:
+    """The rows of ``metric`` with a median; with ``one_setting``, of the first trigger setting
+    and budget only (the trigger on when there is one)."""
+    rows = section.table[section.table["metric"] == metric].dropna(subset=["median"])
+    if one_setting and len(rows):
+        first = rows.iloc[0]
+        rows = rows[(rows["trigger"] == first["trigger"]) & (rows["budget"] == first["budget"])]
+    return rows
+
+
+def swarm_sentence(section: Section, metric: str = "tracking_error_max_m") -> str:
+    """How the median of ``metric`` changes from the fewest to the most UAVs on the complete
+    graph, per optimiser, and which graph and optimiser have the lowest at the most UAVs (of
+    the first trigger setting and budget)."""
+    rows = _medians(section, metric, one_setting=True)
+    name = METRIC_LABELS.get(metric, metric)
+    smallest, largest = int(rows["n_uav"].min()), int(rows["n_uav"].max())
+    parts = []
+    for optimizer, runs in rows[rows["graph"] == "complete"].groupby("optimizer", sort=False):
+        ends = runs.set_index("n_uav")["median"]
+        if smallest in ends and largest in ends:
+            parts.append(f"{optimizer} {ends[smallest]:.3g} to {ends[largest]:.3g}")
+    text = (
+        f"Median {name}"
+        if not parts
+        else (
+            f"On the complete graph, the median {name} goes from N = {smallest} to N = {largest}: "
+            + "; ".join(parts)
+            + ". At"
+        )
+    )
+    best = rows[rows["n_uav"] == largest].sort_values("median").iloc[0]
+    return (
+        f"{text} N = {largest} the lowest median is {best['optimizer']}'s on the "
+        f"{best['graph']} graph ({best['median']:.3g})."
+    )
+
+
+def robustness_sentence(section: Section, metric: str = "tracking_error_max_m") -> str:
+    """The level that raises the median of ``metric`` most above the nominal one, and how many
+    (level, optimiser, trigger) cells are above the nominal in nearly every pairing."""
+    rows = _medians(section, metric, one_setting=False)
+    name = METRIC_LABELS.get(metric, metric)
+    nominal = rows[rows["family"] == "nominal"].set_index(["optimizer", "trigger"])["median"]
+    levels = rows[rows["family"] != "nominal"].copy()
+    levels["nominal"] = [
+        nominal.get((o, t), np.nan)
+        for o, t in zip(levels["optimizer"], levels["trigger"], strict=True)
+    ]
+    levels["rise"] = levels["median"] - levels["nominal"]
+    worst = levels.sort_values("rise", ascending=False).iloc[0]
+    clear = levels[levels["condition_a12"] >= 0.9]
+    return (
+        f"The largest rise of the median {name} over the nominal run: {worst['scenario']} "
+        f"({worst['family']}) with {worst['optimizer']}, trigger {worst['trigger']}: "
+        f"{worst['median']:.3g} against {worst['nominal']:.3g} (A12 {worst['condition_a12']:.2f})."
+        f" {len(clear)} of {len(levels)} (level, optimiser, trigger) cells have A12 >= 0.9 "
+        "against the nominal run (higher in nearly every pairing of seeds)."
+    )
+
+
+def obstacles_sentence(section: Section) -> str:
+    """Median intrusions, collisions and smallest separation with each penalty setting (of the
+    first trigger setting and budget)."""
+    first = section.table.iloc[0]
+    table = section.table[
+        (section.table["trigger"] == first["trigger"])
+        & (section.table["budget"] == first["budget"])
+    ].set_index(["scenario_name", "penalties", "optimizer", "metric"])
+    parts = []
+    for (scenario, penalties, optimizer), _ in table.groupby(
+        level=["scenario_name", "penalties", "optimizer"], sort=False
+    ):
+        values = table.loc[(scenario, penalties, optimizer)]["median"]
+        parts.append(
+            f"{scenario} with penalties {penalties}, {optimizer}: "
+            f"{values.get('obstacle_intrusions', np.nan):.3g} intrusions, "
+            f"{values.get('collisions', np.nan):.3g} collisions, smallest separation "
+            f"{values.get('min_separation_m', np.nan):.3g} m"
+        )
+    return "Medians per run: " + "; ".join(parts) + "."

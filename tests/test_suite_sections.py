@@ -1,0 +1,253 @@
+"""The report sections of the swarm, robustness and obstacles suites.
+
+On a fake results table (numbers drawn from a seeded Generator, so the statistics can be
+checked against direct computations), then end to end on a tiny real sweep through
+``formation-bench report``.
+"""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from formation_bench.benchmarks.analysis import stats
+from formation_bench.benchmarks.analysis import suite_sections as sections
+from formation_bench.benchmarks.cli import main
+from formation_bench.benchmarks.experiments.suite import parse_suite
+from formation_bench.benchmarks.experiments.sweep import run_sweep
+
+OPTIMIZERS = ("modified-bso", "pso", "de")
+SCENARIOS = {
+    # label: (registered name, overrides, shift of every error metric)
+    "N3-complete": ("paper", {}, 0.0),
+    "N5-complete": ("swarm-5", {}, 2.0),
+    "N5-ring": ("swarm-5", {"graph": "ring"}, -1.0),
+    "loss-0.3": ("paper", {"packet_loss": 0.3}, 3.0),
+    "loss-0.1": ("paper", {"packet_loss": 0.1}, 1.0),
+    "gust-1": ("paper", {"gust_std_m_s": 1.0}, 0.5),
+    "obstacles-on": ("paper-obstacles", {}, 0.0),
+    "obstacles-off": ("paper-obstacles", {"w_obstacle": 0.0, "w_collision": 0.0}, 0.0),
+}
+
+
+def fake_results(seeds: int = 5, labels=tuple(SCENARIOS)) -> pd.DataFrame:
+    rng = np.random.default_rng(11)
+    rows = []
+    for label in labels:
+        name, overrides, shift = SCENARIOS[label]
+        for k, optimizer in enumerate(OPTIMIZERS):
+            for seed in range(seeds):
+                # the optimisers differ by k, the scenarios by shift: known orders
+                error = 1.0 + shift + 0.3 * k + 0.1 * rng.random()
+                rows.append(
+                    {
+                        "suite": "fake",
+                        "scenario": label,
+                        "scenario_name": name,
+                        "scenario_overrides": json.dumps(overrides, sort_keys=True),
+                        "optimizer": optimizer,
+                        "optimizer_name": optimizer,
+                        "trigger": True,
+                        "budget": "max_evaluations=1200",
+                        "seed": seed,
+                        "tracking_error_max_m": error,
+                        "distance_error_rms_m": error / 10,
+                        "distance_error_max_m_max": error / 5,
+                        "solves_total": int(rng.integers(200, 300)),
+                        "collisions": int(rng.integers(0, 3)),
+                        "collision_time_s": float(rng.integers(0, 3)) * 0.2,
+                        "obstacle_intrusions": int("on" not in label) * int(rng.integers(1, 3)),
+                        "obstacle_time_s": 0.2 * int("on" not in label),
+                        "min_separation_m": 5.0 - error,
+                        "solve_time_median_s": 1e-3 * (1 + k + rng.random()),
+                    }
+                )
+    return pd.DataFrame(rows)
+
+
+def by_name(found):
+    return {s.name: s for s in found}
+
+
+@pytest.fixture(scope="module")
+def five():
+    """The sections of the fake table with 5 seeds, and the table."""
+    runs = fake_results()
+    return by_name(sections.sections(runs)), runs
+
+
+@pytest.fixture(scope="module")
+def ten():
+    """The sections of the fake table with 10 seeds, and the table."""
+    runs = fake_results(seeds=10)
+    return by_name(sections.sections(runs)), runs
+
+
+def test_each_section_applies_to_the_runs_it_compares(five):
+    found, _ = five
+    assert set(found) == {"swarm", "robustness", "obstacles"}
+    assert set(found["swarm"].runs["scenario"]) == {"N3-complete", "N5-complete", "N5-ring"}
+    robustness = {"N3-complete", "loss-0.3", "loss-0.1", "gust-1"}
+    assert set(found["robustness"].runs["scenario"]) == robustness
+    assert set(found["obstacles"].runs["scenario"]) == {"obstacles-on", "obstacles-off"}
+    # the paper scenario alone gets no section
+    assert sections.sections(fake_results(labels=("N3-complete",))) == []
+
+
+def test_scenario_columns_read_the_scenario_not_the_label():
+    frame = sections.scenario_columns(fake_results()).drop_duplicates("scenario")
+    frame = frame.set_index("scenario")
+    assert frame.loc["N5-ring", "n_uav"] == 5 and frame.loc["N5-ring", "graph"] == "ring"
+    assert frame.loc["loss-0.3", "family"] == "packet loss"
+    assert frame.loc["gust-1", "family"] == "wind"
+    assert frame.loc["obstacles-on", "penalties"] == "obstacle + collision"
+    assert frame.loc["obstacles-off", "penalties"] == "off"
+    # levels: nominal first, then the families in their order, the mildest level first
+    order = frame["level_order"].sort_values().index.tolist()
+    assert order.index("N3-complete") < order.index("gust-1") < order.index("loss-0.1")
+    assert order.index("loss-0.1") < order.index("loss-0.3")
+
+
+def test_swarm_medians_intervals_and_tests_match_direct_computation(five):
+    found, runs = five
+    swarm = found["swarm"]
+    table = swarm.table.set_index(["scenario", "optimizer", "metric"])
+    metric = "tracking_error_max_m"
+    for scenario in ("N5-ring", "N3-complete"):
+        for optimizer in OPTIMIZERS:
+            values = runs[(runs["scenario"] == scenario) & (runs["optimizer"] == optimizer)]
+            row = table.loc[(scenario, optimizer, metric)]
+            assert row["median"] == np.median(values[metric])
+            assert values[metric].min() <= row["ci_low"] <= row["median"] <= row["ci_high"]
+    # the ring against the complete graph at N = 5, same optimiser
+    ring = runs[(runs["scenario"] == "N5-ring") & (runs["optimizer"] == "pso")][metric]
+    complete = runs[(runs["scenario"] == "N5-complete") & (runs["optimizer"] == "pso")][metric]
+    row = table.loc[("N5-ring", "pso", metric)]
+    assert row["condition_baseline"] == "N5-complete"
+    assert row["condition_a12"] == stats.a12(ring.to_numpy(), complete.to_numpy()) == 0.0
+    assert np.isnan(table.loc[("N3-complete", "pso", metric), "condition_a12"])
+    # the optimisers: ranks 1..3 within every scenario, in the order the data were made
+    ranks = swarm.table[swarm.table["metric"] == metric].pivot_table(
+        index="scenario", columns="optimizer", values="average_rank"
+    )
+    assert (ranks.sum(axis=1) == 6.0).all()
+    assert (ranks[list(OPTIMIZERS)].to_numpy() == [1.0, 2.0, 3.0]).all()
+
+
+def test_swarm_markdown_tables_against_n_with_ranks_and_the_power_note(five, ten):
+    swarm = five[0]["swarm"]
+    text = swarm.markdown
+    assert "| graph | optimizer | N = 3 | N = 5 |" in text
+    ring = next(line for line in text.splitlines() if line.startswith("| ring | pso |"))
+    assert ring.split(" | ")[2] == "–" and "A12 0.00" in ring  # no ring of 3 UAVs
+    assert "| N | graph | modified-bso | de | pso | Friedman p |" in text
+    assert "smallest two-sided Wilcoxon p is 0.0625" in text
+    assert set(swarm.parts) == set(sections.SWARM_METRICS)
+    # enough seeds for a significant pair: no note, and the clear differences are marked
+    swarm = ten[0]["swarm"]
+    assert "smallest two-sided Wilcoxon p" not in swarm.markdown
+    assert "A12 0.00*" in swarm.parts["tracking_error_max_m"]
+
+
+def test_robustness_compares_every_level_with_the_nominal_run(ten):
+    robustness = ten[0]["robustness"]
+    table = robustness.table
+    rows = table[(table["metric"] == "tracking_error_max_m") & (table["family"] != "nominal")]
+    assert set(rows["condition_baseline"]) == {"N3-complete"}
+    # every level is shifted up from the nominal: A12 = 1, Holm-adjusted p below 0.05
+    assert (rows["condition_a12"] == 1.0).all() and rows["condition_significant"].all()
+    assert (rows["condition_p_holm"] < 0.05).all()
+    levels = ["N3-complete", "gust-1", "loss-0.1", "loss-0.3"]
+    assert list(dict.fromkeys(table["scenario"])) == levels
+    assert "| family | level | modified-bso | de | pso |" in robustness.markdown
+
+
+def test_obstacles_compare_the_penalties_on_with_off(five):
+    found, runs = five
+    obstacles = found["obstacles"]
+    table = obstacles.table.set_index(["scenario", "optimizer", "metric"])
+    row = table.loc[("obstacles-on", "modified-bso", "obstacle_intrusions")]
+    on = runs[(runs["scenario"] == "obstacles-on") & (runs["optimizer"] == "modified-bso")]
+    off = runs[(runs["scenario"] == "obstacles-off") & (runs["optimizer"] == "modified-bso")]
+    assert row["condition_baseline"] == "obstacles-off"
+    assert row["condition_a12"] == stats.a12(
+        on["obstacle_intrusions"].to_numpy(), off["obstacle_intrusions"].to_numpy()
+    )
+    assert row["median"] == 0
+    assert table.loc[("obstacles-off", "modified-bso", "obstacle_intrusions"), "median"] > 0
+    lines = obstacles.parts["obstacle_intrusions"].splitlines()
+    assert "| scenario | penalties | modified-bso | de | pso |" in lines
+    assert any(line.startswith("| paper-obstacles | obstacle + collision |") for line in lines)
+
+
+SUITE = """\
+name = "tiny-scenarios"
+seeds = 3
+triggers = [true]
+
+[[optimizers]]
+name = "modified-bso"
+overrides = { max_iterations = 2 }
+
+[[optimizers]]
+name = "pso"
+overrides = { max_iterations = 2 }
+
+[[scenarios]]
+name = "paper"
+label = "N3"
+overrides = { n_steps = 10, settle_time_s = 1.0 }
+
+[[scenarios]]
+name = "swarm-5"
+label = "N5-ring"
+overrides = { n_steps = 10, settle_time_s = 1.0, graph = "ring" }
+
+[[scenarios]]
+name = "paper"
+label = "loss-0.3"
+overrides = { n_steps = 10, settle_time_s = 1.0, packet_loss = 0.3 }
+
+[[scenarios]]
+name = "paper-obstacles"
+label = "obstacles-on"
+overrides = { n_steps = 10, settle_time_s = 1.0 }
+
+[[scenarios]]
+name = "paper-obstacles"
+label = "obstacles-off"
+overrides = { n_steps = 10, settle_time_s = 1.0, w_obstacle = 0.0, w_collision = 0.0 }
+"""
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    out = tmp_path_factory.mktemp("tiny-scenarios")
+    suite = parse_suite(SUITE, out / "tiny.toml")
+    run_sweep(suite, out, jobs=1, progress=False, log=lambda _: None)
+    return out
+
+
+def test_report_writes_the_sections_of_a_real_sweep(results, capsys):
+    assert main(["report", str(results)]) == 0
+    capsys.readouterr()
+    folder = results / "report"
+    report = (folder / "report.md").read_text()
+    for name, heading in (
+        ("swarm", "## Swarm: metrics against the number of UAVs"),
+        ("robustness", "## Robustness: metrics against the disturbance level"),
+        ("obstacles", "## Obstacles: penalties on and off"),
+    ):
+        section = (folder / f"{name}.md").read_text()
+        assert section.startswith(heading) and heading in report
+        table = pd.read_csv(folder / f"{name}.csv")
+        assert {"median", "ci_low", "ci_high", "average_rank", "condition_a12"} <= set(table)
+        assert (table["n"] == 3).all()
+    swarm = pd.read_csv(folder / "swarm.csv")
+    assert set(swarm["n_uav"]) == {3, 5} and set(swarm["graph"]) == {"complete", "ring"}
+    figures = folder / "figures"
+    stems = [f"swarm_{m}" for m in sections.SWARM_METRICS]
+    stems += [f"robustness_{m}" for m in sections.ROBUSTNESS_METRICS]
+    for stem in [*stems, "obstacles_separation"]:
+        assert (figures / f"{stem}.png").stat().st_size > 10_000
