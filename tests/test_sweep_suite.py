@@ -426,8 +426,7 @@ def test_robustness_suite_varies_one_disturbance_family_at_a_time():
 
 def test_obstacles_suite_turns_the_penalties_on_and_off():
     suite = load_suite("obstacles")
-    # the exact solvers model eq. (14) without the penalties: left out (see the suite file)
-    assert [e.name for e in suite.optimizers] == ["modified-bso", "pso"]
+    assert [e.name for e in suite.optimizers] == ["modified-bso", "pso", "ltv-osqp"]
     settings = sorted(
         (e.name, s.w_obstacle > 0 and bool(s.obstacles), s.w_collision > 0)
         for e in suite.scenarios
@@ -440,4 +439,4 @@ def test_obstacles_suite_turns_the_penalties_on_and_off():
         ("swarm-10", False, True),
     ]
     assert all(_scenario_of(e).obstacles for e in suite.scenarios if e.name == "paper-obstacles")
-    assert len(suite.runs()) == 4 * 2 * 10
+    assert len(suite.runs()) == 4 * 3 * 10
