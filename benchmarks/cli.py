@@ -402,7 +402,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from formation_bench.benchmarks.analysis.paper_budget import shipped_line  # pandas
 
     print(shipped_line(DEFAULT_OPTIMIZER))
-    drawn = " and figures fig3-fig7" if args.figures else ""
+    drawn = " and figures fig3-fig7 and separation_*" if args.figures else ""
     print(
         f"wrote metrics.json, trace.parquet{drawn} to {out}"
         f"{'/seed*' if len(seeds) > 1 else ''} ({time.perf_counter() - start:.1f} s in all)"
