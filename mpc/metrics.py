@@ -48,12 +48,15 @@ def tracking_error(trace: Trace) -> np.ndarray:
     return np.linalg.norm(centre - trace.reference, axis=1)
 
 
+def pair_gaps(positions: np.ndarray) -> np.ndarray:
+    """``(T + 1, N, N)`` distance between every two UAVs at every instant of ``positions``
+    ``(T + 1, N, 2)``."""
+    return np.linalg.norm(positions[:, :, None] - positions[:, None, :], axis=-1)
+
+
 def pair_distance_errors(trace: Trace) -> np.ndarray:
     """``(T + 1, N, N)`` |actual - desired| distance of every pair at every instant."""
-    desired = trace.scenario.desired_distances()
-    positions = trace.states[:, :, :2]
-    actual = np.linalg.norm(positions[:, :, None] - positions[:, None, :], axis=-1)
-    return np.abs(actual - desired)
+    return np.abs(pair_gaps(trace.states[:, :, :2]) - trace.scenario.desired_distances())
 
 
 def listened(trace: Trace) -> np.ndarray:
@@ -64,23 +67,24 @@ def listened(trace: Trace) -> np.ndarray:
     return np.broadcast_to(~np.eye(n_uav, dtype=bool), (n_steps, n_uav, n_uav))
 
 
-def graph_pairs(trace: Trace) -> np.ndarray:
-    """``(T + 1, N, N)`` the pairs of the communication graph at every instant: i < j with i
-    listening to j or j to i (the last instant keeps the graph of the one before)."""
-    neighbours = listened(trace)
+def pairs_of_graph(neighbours: np.ndarray) -> np.ndarray:
+    """``(T + 1, N, N)`` from the neighbour sets ``(T, N, N)``: the pairs of the communication
+    graph at every instant, i < j with i listening to j or j to i (the last instant keeps the
+    graph of the one before)."""
     links = neighbours | np.transpose(neighbours, (0, 2, 1))
     links = np.concatenate((links, links[-1:]))
     return np.triu(links, k=1)
 
 
+def graph_pairs(trace: Trace) -> np.ndarray:
+    """:func:`pairs_of_graph` of the trace's neighbour sets."""
+    return pairs_of_graph(listened(trace))
+
+
 def distance_errors(trace: Trace) -> dict[str, np.ndarray]:
     """|actual - desired| distance of every named pair, per instant."""
-    desired = trace.scenario.desired_distances()
-    positions = trace.states[:, :, :2]
-    return {
-        name: np.abs(np.linalg.norm(positions[:, i] - positions[:, j], axis=1) - desired[i, j])
-        for name, i, j in pair_names(trace.scenario.n_uav)
-    }
+    errors = pair_distance_errors(trace)
+    return {name: errors[:, i, j] for name, i, j in pair_names(trace.scenario.n_uav)}
 
 
 def closed_loop_cost(trace: Trace, instants: slice | np.ndarray = slice(None)) -> float:
@@ -153,30 +157,51 @@ def _events(inside: np.ndarray) -> int:
     return int(np.sum(inside & ~before))
 
 
-def collision_periods(trace: Trace) -> np.ndarray:
-    """``(T, N, N)`` upper-triangular: pairs that came closer than ``safety_radius_m`` during
-    each period, with positions moving in straight lines between the instants."""
-    positions = trace.states[:, :, :2]
+def closest_approach(relative: np.ndarray) -> np.ndarray:
+    """``(T, ...)`` for relative positions ``(T + 1, ..., 2)`` at the instants: the smallest
+    distance within each period, moving in straight lines between the instants."""
+    return segment_min_distance(relative[:-1], relative[1:])
+
+
+def collision_periods_at(positions: np.ndarray, safety_radius: float) -> np.ndarray:
+    """``(T, N, N)`` upper-triangular, for positions ``(T + 1, N, 2)``: pairs that came
+    closer than ``safety_radius`` during each period (straight lines between the instants)."""
     relative = positions[:, :, None] - positions[:, None, :]  # (T + 1, N, N, 2)
-    closest = segment_min_distance(relative[:-1], relative[1:])
-    return np.triu(closest < trace.scenario.safety_radius_m, k=1)
+    return np.triu(closest_approach(relative) < safety_radius, k=1)
+
+
+def obstacle_periods_at(positions: np.ndarray, obstacles: np.ndarray) -> np.ndarray:
+    """``(T, N, K)``, for positions ``(T + 1, N, 2)`` and obstacle rows ``(x, y, r)``: UAVs
+    inside obstacle k's radius during each period (straight lines between the instants)."""
+    obstacles = np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)
+    relative = positions[:, :, None] - obstacles[None, None, :, :2]  # (T + 1, N, K, 2)
+    return closest_approach(relative) < obstacles[:, 2]
+
+
+def separation_at(positions: np.ndarray) -> np.ndarray:
+    """``(T + 1,)`` the smallest distance between two UAVs at each instant of ``positions``."""
+    gaps = pair_gaps(positions)
+    return gaps[:, *np.triu_indices(positions.shape[1], k=1)].min(axis=1)
+
+
+def collision_periods(trace: Trace) -> np.ndarray:
+    """:func:`collision_periods_at` of the trace, against ``safety_radius_m``."""
+    return collision_periods_at(trace.states[:, :, :2], trace.scenario.safety_radius_m)
 
 
 def obstacle_periods(trace: Trace) -> np.ndarray:
-    """``(T, N, K)``: UAVs inside obstacle k's radius during each period (straight lines
-    between the instants)."""
-    obstacles = np.asarray(trace.scenario.obstacles, dtype=np.float64).reshape(-1, 3)
-    positions = trace.states[:, :, :2]
-    relative = positions[:, :, None] - obstacles[None, None, :, :2]  # (T + 1, N, K, 2)
-    closest = segment_min_distance(relative[:-1], relative[1:])
-    return closest < obstacles[:, 2]
+    """:func:`obstacle_periods_at` of the trace and its scenario's obstacles."""
+    return obstacle_periods_at(trace.states[:, :, :2], trace.scenario.obstacles)
 
 
 def separation_over_time(trace: Trace) -> np.ndarray:
     """``(T + 1,)`` the smallest distance between two UAVs at each instant, m."""
-    positions = trace.states[:, :, :2]
-    gaps = np.linalg.norm(positions[:, :, None] - positions[:, None, :], axis=-1)
-    return gaps[:, *np.triu_indices(positions.shape[1], k=1)].min(axis=1)
+    return separation_at(trace.states[:, :, :2])
+
+
+def plans_sent_at(solved: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """``(T,)`` plans sent at each instant: one per listener of each new plan."""
+    return np.sum(solved[:, None, :] & neighbours, axis=(1, 2))
 
 
 class Per(enum.Enum):
@@ -410,7 +435,7 @@ def compute_metrics(trace: Trace) -> Metrics:
         collision_time_s=float(collisions.sum() * scenario.period_s),
         obstacle_intrusions=_events(intrusions),
         obstacle_time_s=float(intrusions.sum() * scenario.period_s),
-        plans_sent=int(np.sum(trace.solved[:, None, :] & listened(trace))),
+        plans_sent=int(plans_sent_at(trace.solved, listened(trace)).sum()),
         plans_lost=int(trace.plans_lost.sum()),
         plans_late=int(trace.plans_late.sum()),
         control_effort=tuple(float(e) for e in control_effort(trace)),

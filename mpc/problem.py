@@ -100,6 +100,15 @@ def decision_space(scenario: Scenario, uav: int = 0) -> tuple[np.ndarray, Bounds
     return block_of_step, bounds
 
 
+@functools.lru_cache(maxsize=256)
+def scenario_penalties(scenario: Scenario) -> Penalties:
+    """The scenario's penalties as the cost kernel reads them (obstacle radii grown by the
+    margin); shared, do not modify. Built once per scenario, not at every solve."""
+    obstacles = np.asarray(scenario.obstacles, dtype=np.float64).reshape(-1, 3).copy()
+    obstacles[:, 2] += scenario.obstacle_margin_m
+    return Penalties(scenario.w_collision, scenario.safety_radius_m, obstacles, scenario.w_obstacle)
+
+
 class LocalProblem:
     """UAV ``uav``'s problem of eq. (14) at one update instant, as a batch objective.
 
@@ -154,15 +163,10 @@ class LocalProblem:
         total = self.neighbour_positions.sum(axis=0)
         return total if self.centre_offset_sum is None else total - self.centre_offset_sum
 
-    @functools.cached_property
+    @property
     def penalties(self) -> Penalties:
         """The collision and obstacle penalties of the scenario (none in the paper's)."""
-        scenario = self.scenario
-        obstacles = np.asarray(scenario.obstacles, dtype=np.float64).reshape(-1, 3).copy()
-        obstacles[:, 2] += scenario.obstacle_margin_m
-        return Penalties(
-            scenario.w_collision, scenario.safety_radius_m, obstacles, scenario.w_obstacle
-        )
+        return scenario_penalties(self.scenario)
 
     @property
     def dim(self) -> int:

@@ -392,27 +392,9 @@ class Scenario:
         return lower, upper
 
     @property
-    def mixed_bounds(self) -> bool:
-        """Whether some UAV has bounds of its own."""
-        return self.uav_accel_bounds is not None or self.uav_turn_rate_bounds is not None
-
-    @property
     def communication_faults(self) -> bool:
         """Whether plans can be lost or late."""
         return self.packet_loss > 0 or self.delay_steps > 0 or self.delay_jitter_steps > 0
-
-    @property
-    def disturbed(self) -> bool:
-        """Whether wind, measurement noise or model mismatch act on the run."""
-        return (
-            any(w != 0 for w in self.wind_mean_m_s)
-            or self.gust_std_m_s > 0
-            or self.position_noise_std_m > 0
-            or self.heading_noise_std_rad > 0
-            or self.speed_noise_std_m_s > 0
-            or self.plant_accel_gain != 1.0
-            or self.plant_turn_rate_gain != 1.0
-        )
 
     def initial_state_array(self) -> np.ndarray:
         """Initial states as an ``(N, 4)`` array."""

@@ -30,7 +30,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Patch
 from matplotlib.ticker import MaxNLocator
 
-from formation_bench.mpc.metrics import PAIR_COLUMNS_MAX_UAVS, pair_names, segment_min_distance
+from formation_bench.mpc import metrics
+from formation_bench.mpc.metrics import PAIR_COLUMNS_MAX_UAVS, pair_names
 from formation_bench.mpc.network import listening
 from formation_bench.mpc.scenario import Scenario
 
@@ -250,23 +251,13 @@ def listeners(frame: pd.DataFrame, scenario: Scenario) -> np.ndarray:
     return np.stack([listening(scenario, p) for p in positions[:-1]])
 
 
-def graph_links(frame: pd.DataFrame, scenario: Scenario) -> np.ndarray:
-    """``(T + 1, N, N)`` upper-triangular: the pairs of the communication graph at every
-    instant (i < j with i listening to j or j to i); the last instant keeps the graph of the
-    one before, as the metrics do."""
-    listens = listeners(frame, scenario)
-    links = listens | np.transpose(listens, (0, 2, 1))
-    return np.triu(np.concatenate((links, links[-1:])), k=1)
-
-
 def graph_distance_errors(frame: pd.DataFrame, scenario: Scenario) -> pd.DataFrame:
     """Per instant, the max and RMS over the communication graph's pairs of |actual - desired|
     distance (columns ``max_m``, ``rms_m``, indexed by ``time_s``); NaN at an instant without
     a pair."""
     times, positions = positions_of(frame)
-    actual = np.linalg.norm(positions[:, :, None] - positions[:, None], axis=-1)
-    errors = np.abs(actual - scenario.desired_distances())
-    links = graph_links(frame, scenario)
+    errors = np.abs(metrics.pair_gaps(positions) - scenario.desired_distances())
+    links = metrics.pairs_of_graph(listeners(frame, scenario))
     count = links.sum(axis=(1, 2))
     with np.errstate(invalid="ignore"):
         largest = np.where(links, errors, -np.inf).max(axis=(1, 2))
@@ -399,25 +390,23 @@ def trigger_figure(frame: pd.DataFrame) -> plt.Figure:
 
 
 def collision_instants(frame: pd.DataFrame, safety_radius_m: float) -> np.ndarray:
-    """``(T,)`` the periods in which some pair came closer than ``safety_radius_m``, the UAVs
-    moving in straight lines between the instants (as the ``collisions`` metric counts)."""
+    """``(T,)`` the periods in which some pair came closer than ``safety_radius_m``, as the
+    ``collisions`` metric counts them."""
     _, positions = positions_of(frame)
-    relative = positions[:, :, None] - positions[:, None]
-    closest = segment_min_distance(relative[:-1], relative[1:])
-    return np.triu(closest < safety_radius_m, k=1).any(axis=(1, 2))
+    return metrics.collision_periods_at(positions, safety_radius_m).any(axis=(1, 2))
 
 
 def obstacle_clearance(frame: pd.DataFrame, scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
     """The smallest distance of a UAV to an obstacle's edge at every instant ``(T + 1,)``
-    (negative inside), and ``(T,)`` the periods in which a UAV was inside an obstacle
-    (straight lines between the instants, as the ``obstacle_intrusions`` metric counts)."""
+    (negative inside), and ``(T,)`` the periods in which a UAV was inside an obstacle, as the
+    ``obstacle_intrusions`` metric counts them."""
     _check_scenario(frame, scenario)
     _, positions = positions_of(frame)
     obstacles = np.asarray(scenario.obstacles, dtype=np.float64).reshape(-1, 3)
     relative = positions[:, :, None] - obstacles[:, :2]  # (T + 1, N, K, 2)
     clearance = np.linalg.norm(relative, axis=-1) - obstacles[:, 2]
-    closest = segment_min_distance(relative[:-1], relative[1:])
-    return clearance.min(axis=(1, 2)), (closest < obstacles[:, 2]).any(axis=(1, 2))
+    inside = metrics.obstacle_periods_at(positions, obstacles)
+    return clearance.min(axis=(1, 2)), inside.any(axis=(1, 2))
 
 
 def plans_per_instant(frame: pd.DataFrame, scenario: Scenario) -> pd.DataFrame:
@@ -428,7 +417,7 @@ def plans_per_instant(frame: pd.DataFrame, scenario: Scenario) -> pd.DataFrame:
     by_instant = frame.groupby("time_s")[["plans_lost", "plans_late"]].sum()
     return pd.DataFrame(
         {
-            "sent": (solved[:, None, :] & listens).sum(axis=(1, 2)),
+            "sent": metrics.plans_sent_at(solved, listens),
             "lost": by_instant["plans_lost"].to_numpy()[:-1],
             "late": by_instant["plans_late"].to_numpy()[:-1],
         },
@@ -473,8 +462,7 @@ def separation_figure(frame: pd.DataFrame, scenario: Scenario) -> plt.Figure:
         constrained_layout=True,
     )
     axes = list(axes[:, 0])
-    gaps = np.linalg.norm(positions[:, :, None] - positions[:, None], axis=-1)
-    separation = gaps[:, *np.triu_indices(positions.shape[1], k=1)].min(axis=1)
+    separation = metrics.separation_at(positions)
     slot_gap = scenario.desired_distances()[np.triu_indices(scenario.n_uav, k=1)].min()
     ax = axes[0]
     ax.plot(times, separation, color="k", lw=1.2, label="closest pair", gid="separation")
