@@ -26,6 +26,7 @@ from formation_bench.benchmarks.analysis.paper import (
     format_table,
 )
 from formation_bench.benchmarks.checks import MAX_SEED, LimitError, check_run, check_seed_count
+from formation_bench.benchmarks.interrupts import is_interrupt
 from formation_bench.benchmarks.outputs import write_metrics, write_text, write_trace
 from formation_bench.benchmarks.runner import (
     RunOutcome,
@@ -586,7 +587,9 @@ def main(argv: list[str] | None = None) -> int:
     except (UsageError, plugins.PluginError) as err:
         print(f"formation-bench {args.command}: error: {err}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as err:
+        if not is_interrupt(err):
+            raise
         print(f"formation-bench {args.command}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # output piped into e.g. `head`, which stopped reading

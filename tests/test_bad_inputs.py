@@ -265,3 +265,25 @@ def test_overwrite_replaces_the_folder_as_a_whole(tmp_path):
     assert main([*RUN, *SHORT, "--no-trigger", "--overwrite", "--out", str(out)]) == 0
     assert not (out / "stale_figure.png").exists()
     assert (out / "metrics.json").is_file()
+
+
+def test_an_interrupt_reported_by_numba_as_a_system_error_is_an_interrupt():
+    from formation_bench.benchmarks.interrupts import is_interrupt
+
+    def boxed() -> SystemError:
+        # numba's dispatcher: a KeyboardInterrupt raised while boxing a kernel's result
+        try:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as inner:
+                raise SystemError("returned a result with an exception set") from inner
+        except SystemError as outer:
+            return outer
+
+    assert is_interrupt(KeyboardInterrupt())
+    assert is_interrupt(boxed())
+    assert not is_interrupt(SystemError("a real failure"))
+    looped = ValueError("a")
+    looped.__context__ = ValueError("b")
+    looped.__context__.__context__ = looped
+    assert not is_interrupt(looped)

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from formation_bench.benchmarks.experiments.suite import Suite
+from formation_bench.benchmarks.interrupts import is_interrupt
 from formation_bench.benchmarks.provenance import git_info, machine_info, now, package_versions
 from formation_bench.benchmarks.runner import execute
 from formation_bench.benchmarks.spec import RunSpec
@@ -315,7 +316,9 @@ def _sweep_locked(
         with _sigterm_as_interrupt():
             _execute(pending, store, summary, jobs, scheduler, progress, suite.name)
         state = "failed" if summary.failed else "done"
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as err:
+        if not is_interrupt(err):
+            raise
         summary.interrupted = True
         state = "interrupted"
     finally:
