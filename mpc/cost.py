@@ -42,27 +42,15 @@ from formation_bench.mpc.model import (
 
 
 @nb.njit(cache=True, inline="always")
-def _intrusion(x: float, y: float, xs: np.ndarray, ys: np.ndarray, radius: float) -> float:
-    """Sum of ``max(0, radius - |(x, y) - (xs_j, ys_j)|)^2`` over the points."""
-    total = 0.0
-    for j in range(xs.shape[0]):
-        dx, dy = x - xs[j], y - ys[j]
+def _add_intrusion(
+    penalty: np.ndarray, x: np.ndarray, y: np.ndarray, cx: float, cy: float, radius: float
+) -> None:
+    """``penalty[i] += max(0, radius - |(x_i, y_i) - (cx, cy)|)^2`` for every candidate i."""
+    for i in range(x.shape[0]):
+        dx, dy = x[i] - cx, y[i] - cy
         gap = radius - math.sqrt(dx * dx + dy * dy)
         if gap > 0.0:
-            total += gap * gap
-    return total
-
-
-@nb.njit(cache=True, inline="always")
-def _obstacle_intrusion(x: float, y: float, obstacles: np.ndarray) -> float:
-    """Sum of ``max(0, r_o - |(x, y) - c_o|)^2`` over the obstacle rows ``(c_x, c_y, r_o)``."""
-    total = 0.0
-    for o in range(obstacles.shape[0]):
-        dx, dy = x - obstacles[o, 0], y - obstacles[o, 1]
-        gap = obstacles[o, 2] - math.sqrt(dx * dx + dy * dy)
-        if gap > 0.0:
-            total += gap * gap
-    return total
+            penalty[i] += gap * gap
 
 
 # inline: the closed loop calls it only through packed_batch_cost, which then holds the one
@@ -111,10 +99,10 @@ def batch_cost(
     h = period / substeps
     # one row per quantity, one column per candidate: the loops over the
     # candidates then run over contiguous memory, and one allocation serves all
-    work = np.empty((13, n))
+    work = np.empty((14, n))
     x, y, theta, v, cos_t, sin_t = work[0], work[1], work[2], work[3], work[4], work[5]
     accel, omega, cos_half, sin_half = work[6], work[7], work[8], work[9]
-    cos_full, sin_full, total = work[10], work[11], work[12]
+    cos_full, sin_full, total, penalty = work[10], work[11], work[12], work[13]
     for i in range(n):
         x[i], y[i], theta[i], v[i] = state[0], state[1], state[2], state[3]
         total[i] = 0.0
@@ -150,15 +138,23 @@ def batch_cost(
             cx = x[i] - centre_target[k, 0]
             cy = y[i] - centre_target[k, 1]
             total[i] += w_dst * formation + w_centre * (cx * cx + cy * cy)
+        # each penalty sums over its points in order, point outermost: the candidates stay
+        # innermost, as in the integration above
         if w_collision > 0.0:
-            for i in range(n):
-                total[i] += w_collision * _intrusion(
-                    x[i], y[i], neighbour_positions[:, k, 0], neighbour_positions[:, k, 1],
+            penalty[:] = 0.0
+            for j in range(neighbour_positions.shape[0]):
+                _add_intrusion(
+                    penalty, x, y, neighbour_positions[j, k, 0], neighbour_positions[j, k, 1],
                     safety_radius,
                 )  # fmt: skip
-        if w_obstacle > 0.0:
             for i in range(n):
-                total[i] += w_obstacle * _obstacle_intrusion(x[i], y[i], obstacles)
+                total[i] += w_collision * penalty[i]
+        if w_obstacle > 0.0:
+            penalty[:] = 0.0
+            for o in range(obstacles.shape[0]):
+                _add_intrusion(penalty, x, y, obstacles[o, 0], obstacles[o, 1], obstacles[o, 2])
+            for i in range(n):
+                total[i] += w_obstacle * penalty[i]
     out = np.empty(n)
     for i in range(n):
         out[i] = total[i] * period
