@@ -267,18 +267,19 @@ def test_overwrite_replaces_the_folder_as_a_whole(tmp_path):
     assert (out / "metrics.json").is_file()
 
 
+def boxed() -> SystemError:
+    """numba's dispatcher: a KeyboardInterrupt raised while boxing a kernel's result."""
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as inner:
+            raise SystemError("returned a result with an exception set") from inner
+    except SystemError as outer:
+        return outer
+
+
 def test_an_interrupt_reported_by_numba_as_a_system_error_is_an_interrupt():
     from formation_bench.benchmarks.interrupts import is_interrupt
-
-    def boxed() -> SystemError:
-        # numba's dispatcher: a KeyboardInterrupt raised while boxing a kernel's result
-        try:
-            try:
-                raise KeyboardInterrupt
-            except KeyboardInterrupt as inner:
-                raise SystemError("returned a result with an exception set") from inner
-        except SystemError as outer:
-            return outer
 
     assert is_interrupt(KeyboardInterrupt())
     assert is_interrupt(boxed())
@@ -287,3 +288,21 @@ def test_an_interrupt_reported_by_numba_as_a_system_error_is_an_interrupt():
     looped.__context__ = ValueError("b")
     looped.__context__.__context__ = looped
     assert not is_interrupt(looped)
+
+
+def test_a_sweep_run_raises_an_interrupt_and_returns_a_real_failure(monkeypatch):
+    from formation_bench.benchmarks.experiments import sweep
+    from formation_bench.benchmarks.spec import RunSpec
+    from formation_bench.mpc.scenario import get_scenario
+    from formation_bench.optimizers import get_optimizer
+
+    scenario = get_scenario("paper")
+    spec = RunSpec.of("pso", get_optimizer("pso"), "paper", scenario, trigger=True, seed=0)
+    monkeypatch.setattr(sweep, "execute", lambda _: (_ for _ in ()).throw(boxed()))
+    with pytest.raises(SystemError):  # in-process sweeps stop on it instead of storing it
+        sweep.execute_run(spec)
+    monkeypatch.setattr(
+        sweep, "execute", lambda _: (_ for _ in ()).throw(SystemError("a real failure"))
+    )
+    result = sweep.execute_run(spec)
+    assert result.row is None and "a real failure" in result.error

@@ -61,14 +61,20 @@ class RunResult:
 
 
 def execute_run(spec: RunSpec) -> RunResult:
-    """Carry out one run in a worker and return its row; never raises (errors are returned)."""
+    """Carry out one run in a worker and return its row; errors are returned, not raised.
+
+    An interrupt is raised, also when numba reports it as a ``SystemError`` (in-process runs
+    with one job): it stops the sweep rather than being stored as a failed run.
+    """
     from threadpoolctl import threadpool_limits
 
     try:
         with threadpool_limits(limits=1):
             outcome = execute(spec)
         return RunResult(spec.key, outcome.record.row(), outcome.frame if spec.trace else None)
-    except Exception:
+    except Exception as err:
+        if is_interrupt(err):
+            raise
         return RunResult(spec.key, None, error=traceback.format_exc())
 
 
