@@ -240,11 +240,7 @@ def run_compiled_blocks(
             message = "deadline reached"
             break
         iteration = nit + 1
-        if iteration - randoms.first_iteration >= randoms.uniforms.shape[0]:
-            rows = min(max(t_max - iteration + 1, 1), ROWS_AHEAD)
-            uniforms = rng.random((rows, n_uniforms))
-            normals = rng.standard_normal((rows, *normal_shape))
-            randoms = RandomAhead(iteration, uniforms, normals)
+        randoms, _, _ = iteration_randoms(randoms, rng, iteration, t_max)
         left = randoms.first_iteration + randoms.uniforms.shape[0] - iteration
         block_nfev = np.empty(left, dtype=np.int64)
         block_fun = np.empty(left)
