@@ -17,8 +17,7 @@ the ring (J = 2). It measures, in one process:
    linear when the time at the largest J over the time at the smallest is at most the
    ratio of the J and every point lies within :data:`RESIDUAL_TOLERANCE` of the line.
    ``ltv-osqp`` sets up its QP afresh at every call here (the recorded warm starts are not
-   its own plans) and is timed on the complete graph only: its model estimates the
-   formation centre from all N UAVs, not from the group the ring's cost uses.
+   its own plans).
 2. **per run**: a whole ``formation-bench run --no-figures`` equivalent (the runner's
    :func:`~formation_bench.benchmarks.runner.execute`: build, closed loop, metrics, trace
    table), ``modified-bso``, trigger on, seed 0, wall-clock (and the process's CPU) time of
@@ -64,10 +63,6 @@ SWARM_SIZES = (3, 5, 10, 20, 25)
 """N of the measured scenarios: the paper's 3 UAVs, then the registered swarms."""
 GRAPHS = (CommunicationGraph.COMPLETE, CommunicationGraph.RING)
 SOLVE_OPTIMIZERS = ("modified-bso", "pso", "ltv-osqp")
-GROUP_CENTRE_UNSUPPORTED: frozenset[str] = frozenset()
-"""Optimisers whose model of the problem has eq. (14)'s centre over all N UAVs only, and so
-are timed on the complete graph alone (none now: the gradient solvers read the group's
-centre)."""
 RUN_OPTIMIZER = "modified-bso"
 OBJECTIVE_POPULATION = 30
 """Candidates per batch of the objective-alone timing (the BSO's and PSO's population)."""
@@ -232,9 +227,6 @@ def time_solves(
     """Part 1: CPU time per solve and of the objective alone, per configuration."""
     built = {name: get_optimizer(name) for name in optimizers}
 
-    def solvable(name: str, group: SwarmProblems) -> bool:
-        return name not in GROUP_CENTRE_UNSUPPORTED or group.graph == CommunicationGraph.COMPLETE
-
     def solve(name: str, inst: RecordedInstant, seed: int) -> Any:
         problem = inst.problem
         return built[name].minimize(
@@ -251,8 +243,7 @@ def time_solves(
         first = group.instants[0]
         replayed_objective_seconds(first.problem.compiled, [populations[id(first)]], 1)
         for name in optimizers:
-            if solvable(name, group):
-                solve(name, first, 0)
+            solve(name, first, 0)
 
     # [group][optimizer][problem][repeat]; "objective" is the batch cost alone
     keys = ("objective", *optimizers)
@@ -269,8 +260,6 @@ def time_solves(
                 ) / len(batches)
                 nfev[group.label]["objective"][k] = OBJECTIVE_POPULATION
                 for name in optimizers:
-                    if not solvable(name, group):
-                        continue
                     seconds, result = _cpu_seconds(lambda n=name, i=inst, s=k: solve(n, i, s))
                     table[name][k, r] = seconds
                     nfev[group.label][name][k] = result.nfev
@@ -280,8 +269,6 @@ def time_solves(
     for group in groups:
         for key in keys:
             times = cpu[group.label][key]
-            if np.isnan(times).all():
-                continue
             per_problem = np.median(times, axis=1)
             evaluations = nfev[group.label][key]
             rows.append(
