@@ -6,7 +6,9 @@ is executed with nbclient on the venv's ``python3`` kernel with MPLBACKEND=Agg.
 """
 
 import base64
+import dataclasses
 import os
+import warnings
 from pathlib import Path
 
 import nbformat
@@ -97,11 +99,16 @@ def test_analysis_helpers_on_the_stored_results(results_dir):
         (swarm.table["metric"] == "tracking_error_max_m") & (swarm.table["graph"] == "complete")
     ]
     assert all(f"{v:.3g}" in text for v in rows["median"])
+    ring_only = dataclasses.replace(swarm, table=swarm.table[swarm.table["graph"] != "complete"])
+    assert analysis.swarm_sentence(ring_only).startswith("At N = 5 the lowest median")
     assert analysis.scenario_section(paper, "swarm") is None
     robustness = analysis.scenario_section(analysis.suite_runs(results, "robustness"), "robustness")
     assert " of 4 (level, optimiser, trigger) cells" in analysis.robustness_sentence(robustness)
     obstacles = analysis.scenario_section(analysis.suite_runs(results, "obstacles"), "obstacles")
-    assert analysis.obstacles_sentence(obstacles).count("paper-obstacles with penalties") == 4
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", pd.errors.PerformanceWarning)
+        sentence = analysis.obstacles_sentence(obstacles)
+    assert sentence.count("paper-obstacles with penalties") == 4
 
 
 def test_paper_sentence_counts_holds():

@@ -285,10 +285,15 @@ def _medians(section: Section, metric: str, *, one_setting: bool) -> pd.DataFram
     """The rows of ``metric`` with a median; with ``one_setting``, of the first trigger setting
     and budget only (the trigger on when there is one)."""
     rows = section.table[section.table["metric"] == metric].dropna(subset=["median"])
-    if one_setting and len(rows):
-        first = rows.iloc[0]
-        rows = rows[(rows["trigger"] == first["trigger"]) & (rows["budget"] == first["budget"])]
-    return rows
+    return _first_setting(rows) if one_setting else rows
+
+
+def _first_setting(rows: pd.DataFrame) -> pd.DataFrame:
+    """The rows of the first row's trigger setting and budget."""
+    if not len(rows):
+        return rows
+    first = rows.iloc[0]
+    return rows[(rows["trigger"] == first["trigger"]) & (rows["budget"] == first["budget"])]
 
 
 def swarm_sentence(section: Section, metric: str = "tracking_error_max_m") -> str:
@@ -297,6 +302,8 @@ def swarm_sentence(section: Section, metric: str = "tracking_error_max_m") -> st
     the first trigger setting and budget)."""
     rows = _medians(section, metric, one_setting=True)
     name = METRIC_LABELS.get(metric, metric)
+    if not len(rows):
+        return f"No run has a median {name}."
     smallest, largest = int(rows["n_uav"].min()), int(rows["n_uav"].max())
     parts = []
     for optimizer, runs in rows[rows["graph"] == "complete"].groupby("optimizer", sort=False):
@@ -304,17 +311,15 @@ def swarm_sentence(section: Section, metric: str = "tracking_error_max_m") -> st
         if smallest in ends and largest in ends:
             parts.append(f"{optimizer} {ends[smallest]:.3g} to {ends[largest]:.3g}")
     text = (
-        f"Median {name}"
-        if not parts
-        else (
-            f"On the complete graph, the median {name} goes from N = {smallest} to N = {largest}: "
-            + "; ".join(parts)
-            + ". At"
-        )
+        f"On the complete graph, the median {name} goes from N = {smallest} to N = {largest}: "
+        + "; ".join(parts)
+        + ". "
+        if parts
+        else ""
     )
     best = rows[rows["n_uav"] == largest].sort_values("median").iloc[0]
     return (
-        f"{text} N = {largest} the lowest median is {best['optimizer']}'s on the "
+        f"{text}At N = {largest} the lowest median {name} is {best['optimizer']}'s on the "
         f"{best['graph']} graph ({best['median']:.3g})."
     )
 
@@ -345,16 +350,11 @@ def robustness_sentence(section: Section, metric: str = "tracking_error_max_m") 
 def obstacles_sentence(section: Section) -> str:
     """Median intrusions, collisions and smallest separation with each penalty setting (of the
     first trigger setting and budget)."""
-    first = section.table.iloc[0]
-    table = section.table[
-        (section.table["trigger"] == first["trigger"])
-        & (section.table["budget"] == first["budget"])
-    ].set_index(["scenario_name", "penalties", "optimizer", "metric"])
     parts = []
-    for (scenario, penalties, optimizer), _ in table.groupby(
-        level=["scenario_name", "penalties", "optimizer"], sort=False
+    for (scenario, penalties, optimizer), group in _first_setting(section.table).groupby(
+        ["scenario_name", "penalties", "optimizer"], sort=False
     ):
-        values = table.loc[(scenario, penalties, optimizer)]["median"]
+        values = group.set_index("metric")["median"]
         parts.append(
             f"{scenario} with penalties {penalties}, {optimizer}: "
             f"{values.get('obstacle_intrusions', np.nan):.3g} intrusions, "
