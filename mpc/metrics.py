@@ -83,8 +83,12 @@ def graph_pairs(trace: Trace) -> np.ndarray:
 
 def distance_errors(trace: Trace) -> dict[str, np.ndarray]:
     """|actual - desired| distance of every named pair, per instant."""
-    errors = pair_distance_errors(trace)
-    return {name: errors[:, i, j] for name, i, j in pair_names(trace.scenario.n_uav)}
+    return named_pair_series(pair_distance_errors(trace))
+
+
+def named_pair_series(pair_values: np.ndarray) -> dict[str, np.ndarray]:
+    """The series of every named pair (:func:`pair_names`) in a ``(T + 1, N, N)`` array."""
+    return {name: pair_values[:, i, j] for name, i, j in pair_names(pair_values.shape[1])}
 
 
 def closed_loop_cost(trace: Trace, instants: slice | np.ndarray = slice(None)) -> float:
@@ -240,7 +244,10 @@ class Metrics:
         per=Per.PAIR,
     )
     distance_error_max_m_max: float = metric(
-        "the largest of the pairs' distance errors after the settle time", "m"
+        "the largest distance error of the communication graph's pairs after the settle time "
+        "(every pair on the complete graph, so on a partial graph it may be below a named "
+        "pair's distance_error_max_m)",
+        "m",
     )
     solves: tuple[int, ...] = metric(
         "solves of a UAV over the run (one per instant without the trigger)", "solves", per=Per.UAV
@@ -394,8 +401,8 @@ def compute_metrics(trace: Trace) -> Metrics:
             f"settle_time_s={scenario.settle_time_s} is after the end of the run "
             f"({trace.times[-1]:.2f} s)"
         )
-    tracking_all, errors = tracking_error(trace), distance_errors(trace)
-    pair_errors, pairs = pair_distance_errors(trace), graph_pairs(trace)
+    tracking_all, pair_errors = tracking_error(trace), pair_distance_errors(trace)
+    errors, pairs = named_pair_series(pair_errors), graph_pairs(trace)
     settled_pair_errors = pair_errors[settled][pairs[settled]]
     tracking = tracking_all[settled]
     collisions, intrusions = collision_periods(trace), obstacle_periods(trace)

@@ -55,7 +55,7 @@ from formation_bench.benchmarks.analysis.figures import (
     distribution_figure,
     metric_vs_level_figure,
     metric_vs_n_figure,
-    separation_figure,
+    safety_metrics_figure,
     solve_time_ecdf_figure,
     solves_figure,
 )
@@ -265,6 +265,6 @@ obstacles = analysis.scenario_section(analysis.suite_runs(results, "obstacles"),
 if obstacles is None:
     say("No `obstacles` suite in this folder: section 7 skipped.")
 else:
-    show(separation_figure(obstacles.runs))
+    show(safety_metrics_figure(obstacles.runs))
     say(analysis.obstacles_sentence(obstacles))
     say(obstacles.intro + "\n" + obstacles.parts["obstacle_intrusions"])

@@ -426,6 +426,18 @@ def test_swarm_metrics_summarise_the_graph_pairs():
             "distance_error_max_m_d31"} <= set(paper)  # fmt: skip
 
 
+def test_named_pairs_cover_every_pair_and_the_max_covers_the_graph_pairs():
+    scenario = swarm_scenario("ring-4", 4, graph="ring", **SHORT)
+    trace = simulate(scenario, get_optimizer("pso"), trigger=True, seed=0)
+    measured = compute_metrics(trace)
+    named = measured.distance_error_max_m
+    assert list(named) == ["d12", "d23", "d34", "d41", "d13", "d24"]  # ring first, then chords
+    pairs = graph_pairs(trace)
+    assert np.all(pairs.sum(axis=(1, 2)) == 4)  # the chords d13, d24 are not links
+    ring = [named[name] for name in ("d12", "d23", "d34", "d41")]
+    assert measured.distance_error_max_m_max == max(ring)
+
+
 # --- mixed vehicles and the formation library ------------------------------------------------
 
 

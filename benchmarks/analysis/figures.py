@@ -504,7 +504,7 @@ def metric_vs_level_figure(frame: pd.DataFrame, metric: str, hue: str = "optimiz
     return fig
 
 
-def separation_figure(
+def safety_metrics_figure(
     frame: pd.DataFrame,
     metrics: tuple[str, ...] = ("min_separation_m", "collisions", "obstacle_intrusions"),
     hue: str = "optimizer",

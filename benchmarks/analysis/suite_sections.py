@@ -611,7 +611,7 @@ def section_figures(section: Section) -> dict[str, object]:
             for metric in section.metrics:
                 drawn[f"robustness_{metric}"] = figures.metric_vs_level_figure(runs, metric)
         else:
-            drawn["obstacles_separation"] = figures.separation_figure(runs)
+            drawn["obstacles_separation"] = figures.safety_metrics_figure(runs)
     return drawn
 
 
