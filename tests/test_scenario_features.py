@@ -213,6 +213,54 @@ def test_a_plan_older_than_the_one_held_is_dropped():
     assert network.held[0][1] is fast
 
 
+def test_copies_of_one_plan_arrive_at_each_receivers_own_delay():
+    scenario = get_scenario("paper", delay_jitter_steps=3)
+    initial = [plan_at(0, scenario) for _ in range(3)]
+    network = Network(scenario, initial, np.random.default_rng(0))
+    plan = plan_at(4, scenario, (1.0, 2.0, 0.1, 15.0))
+    network.extra_delay[:] = np.array([[0, 0, 0], [0, 0, 0], [0, 2, 0]])  # [receiver, sender]
+    network.send(4, 1, plan, np.array([True, False, True]))
+    assert network.deliver(5).tolist() == [0, 0, 0]  # UAV 1's copy, on time
+    assert network.held[0][1] is plan and network.held[2][1] is initial[1]
+    assert network.deliver(6).tolist() == [0, 0, 0]
+    assert network.deliver(7).tolist() == [0, 0, 1]  # UAV 3's copy, two periods late
+    assert network.held[2][1] is plan and network.in_flight == []
+
+
+def test_the_network_hands_over_what_one_copy_at_a_time_would():
+    """Random sends under loss and jitter against a plain per-copy model of the links."""
+    scenario = get_scenario("paper", packet_loss=0.3, loss_correlation=0.4,
+                            delay_steps=1, delay_jitter_steps=3)  # fmt: skip
+    rng = np.random.default_rng(5)
+    initial = [plan_at(0, scenario) for _ in range(3)]
+    network = Network(scenario, initial, np.random.default_rng(1))
+    held = [list(initial) for _ in range(3)]
+    copies: list[tuple[int, int, int, Plan, bool]] = []  # arrival, sender, receiver, plan, late
+    for step in range(1, 60):
+        network.advance_links()
+        late = np.zeros(3, dtype=np.int64)
+        waiting = []
+        for arrival, sender, receiver, plan, is_late in copies:
+            if arrival > step:
+                waiting.append((arrival, sender, receiver, plan, is_late))
+                continue
+            if plan.start_step >= held[receiver][sender].start_step:
+                held[receiver][sender] = plan
+            late[receiver] += is_late
+        copies = waiting
+        np.testing.assert_array_equal(network.deliver(step), late)
+        assert all(network.held[i][j] is held[i][j] for i in range(3) for j in range(3))
+        for sender in np.flatnonzero(rng.random(3) < 0.6):
+            listeners = rng.random(3) < 0.8
+            listeners[sender] = False
+            plan = plan_at(step, scenario)
+            lost = network.send(step, int(sender), plan, listeners)
+            np.testing.assert_array_equal(lost, listeners & network.lost_state[:, sender])
+            for receiver in np.flatnonzero(listeners & ~lost):
+                arrival = step + 1 + scenario.delay_steps + network.extra_delay[receiver, sender]
+                copies.append((arrival, int(sender), int(receiver), plan, arrival > step + 1))
+
+
 def test_bursty_losses_have_the_stated_share_and_burst_length():
     loss, rho = 0.3, 0.6
     scenario = get_scenario("paper", packet_loss=loss, loss_correlation=rho)
