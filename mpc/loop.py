@@ -27,6 +27,7 @@ from formation_bench.mpc.network import Network, listening
 from formation_bench.mpc.problem import (
     LocalProblem,
     Plan,
+    centre_group_size,
     coasting_plan,
     estimate_positions,
     shifted_controls,
@@ -193,7 +194,7 @@ def simulate(
                         own[window],
                         others[:, window],
                         reference[c : c + lookahead + 1],
-                        len(heard) + 1 if group_centre else n_uav,
+                        centre_group_size(n_uav, len(heard), group_centre),
                         scenario.eps_o,
                         None if group_offsets is None else group_offsets[window],
                     ),

@@ -109,6 +109,12 @@ def scenario_penalties(scenario: Scenario) -> Penalties:
     return Penalties(scenario.w_collision, scenario.safety_radius_m, obstacles, scenario.w_obstacle)
 
 
+def centre_group_size(n_uav: int, n_neighbours: int, group_centre: bool) -> int:
+    """M, the number of UAVs a UAV estimates the formation centre from: every UAV (eq. 14),
+    or with ``group_centre`` the UAV and its ``n_neighbours`` neighbours alone."""
+    return n_neighbours + 1 if group_centre else n_uav
+
+
 class LocalProblem:
     """UAV ``uav``'s problem of eq. (14) at one update instant, as a batch objective.
 
@@ -152,9 +158,11 @@ class LocalProblem:
     @property
     def centre_group(self) -> int:
         """M, the number of UAVs the formation centre is estimated from."""
-        if self.centre_offset_sum is None:
-            return self.scenario.n_uav
-        return self.neighbour_positions.shape[0] + 1
+        return centre_group_size(
+            self.scenario.n_uav,
+            self.neighbour_positions.shape[0],
+            group_centre=self.centre_offset_sum is not None,
+        )
 
     @property
     def centre_neighbour_sum(self) -> np.ndarray:
