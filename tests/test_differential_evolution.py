@@ -63,9 +63,7 @@ def trials_by_hand(x, best, strategy, F, CR, u):
 
 def trials(x, u, strategy=RAND, F=0.5, CR=0.9, best=0, mode=BoundHandling.CLIP, box=WIDE):
     d = x.shape[1]
-    return make_trials(
-        x, best, strategy, F, CR, int(mode), np.full(d, -box), np.full(d, box), u
-    )
+    return make_trials(x, best, strategy, F, CR, int(mode), np.full(d, -box), np.full(d, box), u)
 
 
 def test_partners_cover_every_ordered_choice_once_and_never_the_member() -> None:
