@@ -33,7 +33,6 @@ The default population is 25 with 5 local points per iteration: 30 evaluations
 per iteration, the same budget as the other population optimisers.
 """
 
-
 from __future__ import annotations
 
 from dataclasses import dataclass
