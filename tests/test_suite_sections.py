@@ -251,3 +251,20 @@ def test_report_writes_the_sections_of_a_real_sweep(results, capsys):
     stems += [f"robustness_{m}" for m in sections.ROBUSTNESS_METRICS]
     for stem in [*stems, "obstacles_separation"]:
         assert (figures / f"{stem}.png").stat().st_size > 10_000
+
+
+def test_the_robustness_sentence_compares_each_level_with_the_nominal_run_of_its_budget():
+    from formation_bench.benchmarks.analysis import notebook as analysis
+
+    runs = fake_results(labels=("N3-complete", "loss-0.3", "loss-0.1", "gust-1"))
+    slower = runs.assign(
+        budget="max_evaluations=600", tracking_error_max_m=runs["tracking_error_max_m"] + 5.0
+    )
+    section = analysis.scenario_section(pd.concat([runs, slower]), "robustness")
+    text = analysis.robustness_sentence(section)
+    rows = section.table[section.table["metric"] == "tracking_error_max_m"]
+    medians = rows.set_index(["scenario", "optimizer", "budget"])["median"]
+    worst = medians[("loss-0.3", "de", "max_evaluations=600")]
+    nominal = medians[("N3-complete", "de", "max_evaluations=600")]
+    assert f"{worst:.3g} against {nominal:.3g}" in text  # the +5 budget's own nominal run
+    assert "18 of 18 (level, optimiser, trigger) cells" in text

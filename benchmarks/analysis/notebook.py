@@ -329,13 +329,17 @@ def robustness_sentence(section: Section, metric: str = "tracking_error_max_m") 
     (level, optimiser, trigger) cells are above the nominal in nearly every pairing."""
     rows = _medians(section, metric, one_setting=False)
     name = METRIC_LABELS.get(metric, metric)
-    nominal = rows[rows["family"] == "nominal"].set_index(["optimizer", "trigger"])["median"]
+    # each level against its own nominal run: same base scenario, optimiser, trigger and budget
+    keys = ["optimizer", "trigger", "budget"]
+    nominal = rows[rows["family"] == "nominal"].set_index(["scenario", *keys])["median"]
     levels = rows[rows["family"] != "nominal"].copy()
-    levels["nominal"] = [
-        nominal.get((o, t), np.nan)
-        for o, t in zip(levels["optimizer"], levels["trigger"], strict=True)
-    ]
+    if "condition_baseline" not in levels or not len(levels):
+        return f"No disturbed or faulty run has a median {name} to compare with a nominal one."
+    paired = pd.MultiIndex.from_frame(levels[["condition_baseline", *keys]])
+    levels["nominal"] = nominal.reindex(paired).to_numpy()
     levels["rise"] = levels["median"] - levels["nominal"]
+    if levels["rise"].isna().all():
+        return f"No disturbed or faulty run has a nominal run of the same setting ({name})."
     worst = levels.sort_values("rise", ascending=False).iloc[0]
     clear = levels[levels["condition_a12"] >= 0.9]
     return (
