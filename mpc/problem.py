@@ -148,11 +148,7 @@ class LocalProblem:
         self.block_of_step, self.bounds = decision_space(scenario, uav)
         group = self.centre_group
         self._distance_targets = np.ascontiguousarray(neighbour_positions + desired_relative)
-        if centre_offset_sum is None:
-            centre_target = group * reference - neighbour_positions.sum(axis=0)
-        else:
-            centre_target = group * reference - self.centre_neighbour_sum
-        self._centre_target = np.ascontiguousarray(centre_target)
+        self._centre_target = np.ascontiguousarray(group * reference - self.centre_neighbour_sum)
         self._w_centre = scenario.w_trj / group**2
 
     @property

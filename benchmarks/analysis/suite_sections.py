@@ -34,7 +34,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from formation_bench.benchmarks.analysis.report import SIGNIFICANCE, _num, analyse, prepare
+from formation_bench.benchmarks.analysis.report import (
+    SIGNIFICANCE,
+    _num,
+    _p,
+    _save,
+    analyse,
+    prepare,
+)
 from formation_bench.benchmarks.spec import from_json_value
 from formation_bench.mpc.scenario import CommunicationGraph, Scenario, get_scenario
 
@@ -182,16 +189,11 @@ def scenario_columns(results: pd.DataFrame) -> pd.DataFrame:
         levels = (
             frame.dropna(subset=["family"])
             .drop_duplicates("scenario")
-            .sort_values(["family_index", "severity", "scenario"], key=_sortable)
+            .sort_values(["family_index", "severity", "scenario"])
         )
         order = {label: k for k, label in enumerate(levels["scenario"])}
         frame["level_order"] = frame["scenario"].map(order)
     return frame
-
-
-def _sortable(column: pd.Series) -> pd.Series:
-    # tuples of floats compare element by element; pandas sorts them as objects
-    return column.map(lambda v: tuple(v) if isinstance(v, tuple) else v)
 
 
 # --- statistics ------------------------------------------------------------------------------
@@ -321,8 +323,7 @@ def _grid(
 def _friedman_cell(group: pd.DataFrame) -> str:
     if "friedman_p" not in group or group["friedman_p"].isna().all():
         return "–"
-    p = float(group["friedman_p"].dropna().iloc[0])
-    return f"{p:.3f}" if p >= 1e-3 else f"{p:.2e}"
+    return _p(float(group["friedman_p"].dropna().iloc[0]))
 
 
 def _varying(table: pd.DataFrame, columns: tuple[str, ...] = ("trigger", "budget")) -> list[str]:
@@ -629,6 +630,5 @@ def write_sections(results: pd.DataFrame, folder: Path, *, figures: bool = True)
 
             (folder / "figures").mkdir(parents=True, exist_ok=True)
             for stem, figure in section_figures(section).items():
-                figure.savefig(folder / "figures" / f"{stem}.png", dpi=110, bbox_inches="tight")
-                plt.close(figure)
+                _save(figure, folder / "figures" / f"{stem}.png", plt)
     return "\n\n".join(texts)
