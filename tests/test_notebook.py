@@ -91,6 +91,12 @@ def test_analysis_helpers_on_the_stored_results(results_dir):
         pd.concat([analysis.suite_runs(results, "trigger"), paper[~paper["trigger"]]])
     )
     assert sorted(tradeoff["threshold_m"].unique()) == [0.0, 1.0, 4.0]
+    # the combined frame carries the 5-UAV swarm's per-UAV columns; every run here has 3 UAVs
+    assert "solves_uav5" in tradeoff.columns
+    no_trigger = tradeoff[tradeoff["threshold_m"] == 0.0]
+    assert (no_trigger["solves_saved"] == 0.0).all()
+    expected = 1.0 - tradeoff["solves_total"] / (tradeoff["steps"] * 3)
+    assert tradeoff["solves_saved"].to_numpy() == pytest.approx(expected.to_numpy(), rel=1e-12)
     swarm = analysis.scenario_section(analysis.suite_runs(results, "swarm"), "swarm")
     assert set(swarm.table["n_uav"]) == {3, 5}
     # the sentence quotes the table's medians on the complete graph
@@ -109,6 +115,26 @@ def test_analysis_helpers_on_the_stored_results(results_dir):
         warnings.simplefilter("error", pd.errors.PerformanceWarning)
         sentence = analysis.obstacles_sentence(obstacles)
     assert sentence.count("paper-obstacles with penalties") == 4
+
+
+def test_trigger_tradeoff_counts_each_runs_own_uavs():
+    def run(trigger: bool, n_uav: int, solves_total: int, eps: float | None) -> dict:
+        overrides = "{}" if eps is None else f'{{"eps_p": {eps}}}'
+        return {
+            "trigger": trigger,
+            "steps": 100,
+            "solves_total": solves_total,
+            "scenario_overrides": overrides,
+            **{f"solves_uav{k}": solves_total / n_uav for k in range(1, n_uav + 1)},
+        }
+
+    runs = pd.DataFrame(
+        [run(False, 3, 300, None), run(True, 3, 120, 2.0), run(True, 20, 1000, 2.0)]
+    )
+    assert list(analysis.uav_counts(runs)) == [3, 3, 20]
+    tradeoff = analysis.trigger_tradeoff(runs)
+    assert list(tradeoff["threshold_m"]) == [0.0, 2.0, 2.0]
+    assert list(tradeoff["solves_saved"]) == pytest.approx([0.0, 0.6, 0.5])
 
 
 def test_paper_sentence_counts_holds():

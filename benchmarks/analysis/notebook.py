@@ -219,6 +219,15 @@ def convergence_sentence(curves: pd.DataFrame) -> str:
     )
 
 
+def uav_counts(runs: pd.DataFrame) -> pd.Series:
+    """Each run's own number of UAVs: its filled per-UAV solve columns.
+
+    A frame that combines suites has the per-UAV columns of its largest swarm, empty on the
+    rows of smaller ones, so the columns alone do not give a run's size.
+    """
+    return runs.filter(regex=r"^solves_uav\d+$").notna().sum(axis=1)
+
+
 def trigger_tradeoff(runs: pd.DataFrame) -> pd.DataFrame:
     """Per trigger threshold (from the scenario overrides): solves saved and errors, per seed."""
 
@@ -226,10 +235,9 @@ def trigger_tradeoff(runs: pd.DataFrame) -> pd.DataFrame:
         fields = json.loads(overrides) if overrides else {}
         return float(fields.get("eps_p", get_scenario("paper").eps_p))
 
-    n_uav = sum(1 for c in runs.columns if c.startswith("solves_uav"))
     frame = runs.assign(
         threshold_m=runs["scenario_overrides"].map(threshold),
-        solves_saved=1.0 - runs["solves_total"] / (runs["steps"] * n_uav),
+        solves_saved=1.0 - runs["solves_total"] / (runs["steps"] * uav_counts(runs)),
     )
     frame.loc[~frame["trigger"].astype(bool), "threshold_m"] = 0.0
     return frame
