@@ -3,7 +3,9 @@ machine after the work has been done."""
 
 from __future__ import annotations
 
+import os
 import re
+from pathlib import PurePath
 from typing import Any
 
 from formation_bench.mpc.scenario import Scenario
@@ -28,6 +30,19 @@ MAX_SEED = 2**128 - 1
 MAX_SEEDS = 10_000
 """Seeds per command or suite: each seed is at least one closed loop of seconds, so 10,000 of
 them are most of a day on a laptop (and a suite of a billion seeds would not fit in memory)."""
+JOBS_PER_CPU = 2
+"""Local worker processes per CPU this process may use: each runs one closed loop at a time on
+one thread, so more only add memory, start-up time and processes to stop on Ctrl-C."""
+NAME_MAX_FALLBACK = 255
+"""Bytes per file name where the file system cannot be asked (``_XOPEN_NAME_MAX``)."""
+PATH_MAX_FALLBACK = 1024
+"""Bytes per path where the file system cannot be asked (``_XOPEN_PATH_MAX``)."""
+OUT_NAME_RESERVE = 32
+"""Bytes an output folder's name leaves free: a command writes beside it, into a temporary
+folder named from it (``.NAME.<random>.partial``), and renames that into place at the end."""
+OUT_PATH_RESERVE = 128
+"""Bytes an output folder's path leaves free for the files written inside it (the longest, a
+sweep's ``traces/<sha256>.parquet``, is under 100)."""
 DASK_SCHEMES = ("tcp", "tls", "ucx", "ws", "wss")
 """Dask communication protocols that reach a scheduler in another process."""
 _HOST_PORT = re.compile(
@@ -63,6 +78,12 @@ def check_run(scenario: Scenario, optimizer: Optimizer, budget: Budget | None) -
             f"horizon_steps={scenario.horizon_steps} is more than {MAX_HORIZON_STEPS} (every "
             "cost evaluation integrates the whole horizon)"
         )
+    check_optimizer(optimizer, budget)
+
+
+def check_optimizer(optimizer: Optimizer, budget: Budget | None) -> None:
+    """Refuse an optimiser configuration or per-solve budget that would exhaust memory or
+    not finish (``run``, ``sweep`` and ``score`` alike)."""
     population = getattr(optimizer, "population_size", None)
     if isinstance(population, int) and population > MAX_POPULATION:
         raise LimitError(
@@ -100,6 +121,85 @@ def check_seed_count(count: int, what: str = "--seeds") -> None:
             f"{what}: {count:,} seeds is more than {MAX_SEEDS:,} (each seed is at least one "
             "closed loop of seconds: that many would run for days)"
         )
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity where the system tells, else all)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+def max_jobs() -> int:
+    """The most local worker processes a command starts here."""
+    return JOBS_PER_CPU * usable_cpus()
+
+
+def check_jobs(jobs: int, option: str = "--jobs") -> None:
+    """Refuse more local worker processes than the CPUs can run."""
+    cpus = usable_cpus()
+    if jobs > max_jobs():
+        raise LimitError(
+            f"{option}: {jobs} is more than {max_jobs()} ({JOBS_PER_CPU} per CPU, {cpus} CPU"
+            f"{'s' if cpus != 1 else ''} here): each worker runs one closed loop on one thread, "
+            "so more only add memory and processes to stop"
+        )
+
+
+def check_out_path(text: str, option: str = "--out", *, staged: bool = True) -> None:
+    """Refuse an output path that is empty or longer than the file system takes and, for a
+    ``staged`` folder (written whole, then renamed into place), one that names no folder of
+    its own (``.``, ``..``, ``/``); all before any work starts."""
+    if not text.strip():
+        raise LimitError(f"{option}: empty path; give a folder, e.g. {option} results/mine")
+    if staged and PurePath(text).name in ("", ".."):
+        raise LimitError(
+            f"{option} {text}: names no folder of its own (the command writes a new folder "
+            "beside it and renames it into place); give a subfolder, e.g. ./out"
+        )
+    path = os.path.abspath(text)
+    ancestor = _nearest_existing(path)
+    name_max = _pathconf(ancestor, "PC_NAME_MAX", NAME_MAX_FALLBACK)
+    path_max = _pathconf(ancestor, "PC_PATH_MAX", PATH_MAX_FALLBACK)
+    for name in text.split(os.sep):
+        size = len(os.fsencode(name))
+        if size > name_max - OUT_NAME_RESERVE:
+            raise LimitError(
+                f"{option}: the name {_shortened(name)} is {size} bytes, more than "
+                f"{name_max - OUT_NAME_RESERVE} (the file system takes {name_max} per name, and "
+                f"{OUT_NAME_RESERVE} are kept for the temporary folder written beside it)"
+            )
+    size = len(os.fsencode(path))
+    if size > path_max - OUT_PATH_RESERVE:
+        raise LimitError(
+            f"{option}: the path {_shortened(path)} is {size} bytes, more than "
+            f"{path_max - OUT_PATH_RESERVE} (the file system takes {path_max} per path, and "
+            f"{OUT_PATH_RESERVE} are kept for the files written inside it)"
+        )
+
+
+def _nearest_existing(path: str) -> str:
+    """``path`` or its nearest ancestor that exists (``os.path.exists`` is False, not an
+    error, for a path too long to look up)."""
+    while not os.path.exists(path):
+        parent = os.path.dirname(path)
+        if parent == path:
+            break
+        path = parent
+    return path
+
+
+def _pathconf(path: str, name: str, fallback: int) -> int:
+    try:
+        value = os.pathconf(path, name)
+    except (OSError, ValueError, AttributeError):
+        return fallback
+    return value if value > 0 else fallback
+
+
+def _shortened(text: str, keep: int = 24) -> str:
+    """A long name or path as its two ends, so that the message stays one readable line."""
+    return text if len(text) <= 2 * keep + 3 else f"{text[:keep]}...{text[-keep:]}"
 
 
 def check_scheduler_address(address: str) -> str:

@@ -12,11 +12,16 @@ import contextlib
 import dataclasses
 import os
 import re
+import signal
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NoReturn
+
+# first: Ctrl-C during the imports below ends the command in one line
+from formation_bench.benchmarks import command_start  # isort: skip
 
 import formation_bench
 from formation_bench import plugins
@@ -25,7 +30,14 @@ from formation_bench.benchmarks.analysis.paper import (
     format_seed_table,
     format_table,
 )
-from formation_bench.benchmarks.checks import MAX_SEED, LimitError, check_run, check_seed_count
+from formation_bench.benchmarks.checks import (
+    MAX_SEED,
+    LimitError,
+    check_jobs,
+    check_out_path,
+    check_run,
+    check_seed_count,
+)
 from formation_bench.benchmarks.interrupts import is_interrupt
 from formation_bench.benchmarks.outputs import write_metrics, write_text, write_trace
 from formation_bench.benchmarks.runner import (
@@ -77,6 +89,17 @@ def parse_value(text: str) -> Any:
         return text
 
 
+def _assignment(assignment: str) -> tuple[str, str, str, str]:
+    """``[TARGET.]FIELD=VALUE`` as ``(name as written, target or '', field, raw value)``."""
+    name, sep, raw = assignment.partition("=")
+    if not sep or not name:
+        raise UsageError(f"--set expects FIELD=VALUE, got {assignment!r}")
+    target, dot, field = name.partition(".")
+    if not dot:
+        target, field = "", name
+    return name, target, field, raw
+
+
 def split_overrides(
     assignments: list[str], scenario: Scenario, optimizer: Optimizer
 ) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -90,12 +113,7 @@ def split_overrides(
     to_scenario: dict[str, Any] = {}
     to_optimizer: dict[str, Any] = {}
     for assignment in assignments:
-        name, sep, raw = assignment.partition("=")
-        if not sep or not name:
-            raise UsageError(f"--set expects FIELD=VALUE, got {assignment!r}")
-        target, dot, field = name.partition(".")
-        if not dot:
-            field, target = name, ""
+        name, target, field, raw = _assignment(assignment)
         if target not in ("", "scenario", "optimizer"):
             raise UsageError(f"--set {name}: prefix must be 'scenario.' or 'optimizer.'")
         in_scenario, in_optimizer = field in scenario_fields, field in optimizer_fields
@@ -145,11 +163,21 @@ def configured_optimizer(name: str, assignments: list[str]) -> tuple[Optimizer, 
     if name not in OPTIMIZERS:
         allowed = ", ".join(sorted(OPTIMIZERS))
         raise UsageError(f"--optimizer: unknown name {name!r}; allowed: {allowed}")
-    to_scenario, to_optimizer = split_overrides(
-        assignments, get_scenario("paper"), get_optimizer(name)
-    )
-    if to_scenario:
-        raise UsageError(f"--set {next(iter(to_scenario))}: only optimizer fields apply here")
+    fields = sorted(f.name for f in dataclasses.fields(get_optimizer(name)))  # type: ignore[arg-type]
+    listed = ", ".join(fields) or "none"
+    to_optimizer: dict[str, Any] = {}
+    for assignment in assignments:
+        written, target, field, raw = _assignment(assignment)
+        if target not in ("", "optimizer"):
+            raise UsageError(
+                f"--set {written}: only fields of optimizer {name!r} apply here (this command "
+                f"has no scenario); its fields: {listed}"
+            )
+        if field not in fields:
+            raise UsageError(
+                f"--set {written}: unknown field of optimizer {name!r}; its fields: {listed}"
+            )
+        to_optimizer[field] = parse_value(raw)
     try:
         return get_optimizer(name, **to_optimizer), to_optimizer
     except (ValueError, TypeError, KeyError) as err:
@@ -568,33 +596,91 @@ def _seed(text: str) -> int:
     return value
 
 
+STAGED_OUTPUT_COMMANDS = ("run", "reproduce", "report", "export-ioh")
+"""Commands whose --out is written whole beside it, then renamed into place (the others
+resume into their folder)."""
+
+
 def _check_arguments(args: argparse.Namespace) -> None:
-    """Checks that span a whole option (argparse checks each value on its own)."""
+    """Checks that span a whole option or several (argparse checks each value on its own)."""
     try:
-        if args.command == "reproduce":
+        out = getattr(args, "out", None)
+        if out is not None:
+            check_out_path(out, staged=args.command in STAGED_OUTPUT_COMMANDS)
+        if getattr(args, "results", None) is not None:
+            check_out_path(args.results, "DIR", staged=False)
+        if args.command in ("reproduce", "score"):
             check_seed_count(len(set(args.seeds)))
+        if args.command in ("sweep", "score") and getattr(args, "scheduler", None) is None:
+            check_jobs(args.jobs)
     except LimitError as err:
         raise UsageError(str(err)) from None
 
 
+def _take_over_interrupts() -> Any:
+    """Make Ctrl-C end the command in one line; returns the handler to restore.
+
+    The first Ctrl-C raises KeyboardInterrupt, as Python's own handler does. A second press
+    within :data:`REPEAT_GRACE_S` of it is dropped, so that it cannot cut short the clean-up
+    the first one started (removing a half-written folder) nor turn the one line into a
+    traceback. A later press raises again: Python runs a signal handler wherever the main
+    thread is, and a KeyboardInterrupt raised inside a weakref callback or a ``__del__`` is
+    printed and discarded, so ignoring every press after the first could leave the command
+    running for good. A process that ignores Ctrl-C (started in the background) keeps
+    ignoring it.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    previous = signal.getsignal(signal.SIGINT)
+    if previous in (signal.default_int_handler, command_start.interrupted_while_starting):
+        _first_press.clear()
+        signal.signal(signal.SIGINT, _interrupt_once)
+        return previous
+    return None
+
+
+REPEAT_GRACE_S = 2.0
+"""How long after a first Ctrl-C a second one counts as the same request to stop."""
+_first_press: list[float] = []
+
+
+def _interrupt_once(signum: int, frame: object) -> None:
+    now = time.monotonic()
+    if _first_press and now - _first_press[0] < REPEAT_GRACE_S:
+        return
+    _first_press[:] = [now]
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    previous = _take_over_interrupts()
+    command = "formation-bench"
     try:
+        args = build_parser().parse_args(argv)
+        command = f"formation-bench {args.command}"
         _check_arguments(args)
         plugins.load_plugins(args.plugin)
         return args.func(args)
     except (UsageError, plugins.PluginError) as err:
-        print(f"formation-bench {args.command}: error: {err}", file=sys.stderr)
+        print(f"{command}: error: {err}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, SystemError) as err:
         if not is_interrupt(err):
             raise
-        print(f"formation-bench {args.command}: interrupted", file=sys.stderr)
-        return 130
+        if previous is not None:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        print(f"{command}: interrupted", file=sys.stderr)
+        return command_start.INTERRUPTED_EXIT
     except BrokenPipeError:  # output piped into e.g. `head`, which stopped reading
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    finally:
+        if previous is not None:
+            # the command itself exits next, and a Ctrl-C then must not print a traceback
+            # either; a caller of main() in its own process gets its handler back
+            signal.signal(
+                signal.SIGINT, signal.SIG_IGN if command_start.is_the_command() else previous
+            )
 
 
 if __name__ == "__main__":

@@ -165,17 +165,17 @@ def write_text(path: Path, text: str) -> None:
 
 
 def write_trace(path: Path, table: pa.Table) -> None:
-    """Write a trace table as Parquet."""
+    """Write a trace table as Parquet with page checksums, atomically."""
+    import pyarrow as pa
     import pyarrow.parquet as pq
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
+    sink = pa.BufferOutputStream()
+    pq.write_table(table, sink, write_page_checksum=True)
+    atomic_write_bytes(path, sink.getvalue().to_pybytes())
 
 
 def read_trace(path: Path) -> pd.DataFrame:
-    """Read a trace written by :func:`write_trace`."""
-    import pandas as pd
+    """Read a trace written by :func:`write_trace`, every page checked against its checksum."""
+    import pyarrow.parquet as pq
 
-    return pd.read_parquet(path)
+    return pq.read_table(path, page_checksum_verification=True).to_pandas()

@@ -29,10 +29,27 @@ PACKAGES = (
     "statsmodels",
     "seaborn",
     "matplotlib",
+    # the derivative-based baselines (IPOPT inside casadi, OSQP), the QP they are checked
+    # against, the IOH export's logger, and the adapted libraries
+    "casadi",
+    "osqp",
+    "cvxpy",
+    "ioh",
+    "nevergrad",
+    "cma",
+    "mealpy",
 )
+"""Packages whose installed versions every manifest records (None: not installed)."""
 
 
 def package_versions() -> dict[str, str | None]:
+    """Python's and every package's version in :data:`PACKAGES` (None: not installed)."""
+    return dict(_package_versions())
+
+
+@functools.cache
+def _package_versions() -> dict[str, str | None]:
+    # what is installed does not change while a process runs; a sweep asks once per run
     versions: dict[str, str | None] = {"python": platform.python_version()}
     for name in PACKAGES:
         try:
@@ -101,21 +118,37 @@ def _editable_source() -> Path | None:
     return Path(url.removeprefix("file://")) if url.startswith("file://") else None
 
 
+@functools.cache
+def cpu_model() -> str | None:
+    """The processor's model name (Linux's /proc/cpuinfo, macOS's sysctl), None if unknown."""
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            # "model name" on x86 Linux, "Model" on some ARM boards
+            key, _, value = line.partition(":")
+            if key.strip() in ("model name", "Model") and value.strip():
+                return value.strip()
+    if platform.system() == "Darwin":
+        with contextlib.suppress(OSError, subprocess.SubprocessError):
+            done = subprocess.run(
+                ["sysctl", "-n", "machdep.cpu.brand_string"], capture_output=True, text=True,
+                timeout=10, check=True,
+            )  # fmt: skip
+            if done.stdout.strip():
+                return done.stdout.strip()
+    return platform.processor() or None
+
+
 def machine_info() -> dict[str, Any]:
     info: dict[str, Any] = {
         "hostname": platform.node(),
         "platform": platform.platform(),
         "machine": platform.machine(),
         "processor": platform.processor() or None,
+        "cpu_model": cpu_model(),
         "cpu_count": os.cpu_count(),
     }
     if hasattr(os, "sched_getaffinity"):
         info["cpus_available"] = len(os.sched_getaffinity(0))
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                info["cpu_model"] = line.split(":", 1)[1].strip()
-                break
     with contextlib.suppress(OSError, ValueError):
         for line in Path("/proc/meminfo").read_text().splitlines():
             if line.startswith("MemTotal"):

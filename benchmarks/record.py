@@ -24,8 +24,9 @@ from typing import Any
 from formation_bench.benchmarks.spec import RunSpec
 from formation_bench.mpc.metrics import MetricInfo, Metrics, Per, metric_infos, metric_of
 
-RECORD_FORMAT = 3
-"""Bumped when the columns change; a stored run of another format is redone."""
+RECORD_FORMAT = 4
+"""Bumped when the columns change; a stored run of another format is redone. 4: the CPU model
+and the casadi, osqp, cvxpy and ioh versions."""
 
 
 def column(doc: str, *, timing: bool = False) -> Any:
@@ -98,12 +99,18 @@ class Provenance:
     finished_at: str = column("UTC time the run finished (ISO 8601)", timing=True)
     worker_host: str = column("host that ran it", timing=True)
     worker_pid: int = column("process that ran it", timing=True)
+    cpu_model: str | None = column("processor model of the host (None if unknown)", timing=True)
+    casadi_version: str | None = column("casadi version, with the IPOPT it ships", timing=True)
+    osqp_version: str | None = column("osqp version", timing=True)
+    cvxpy_version: str | None = column("cvxpy version (None: not installed)", timing=True)
+    ioh_version: str | None = column("ioh version (None: not installed)", timing=True)
 
     @classmethod
     def here(cls, run_time_s: float) -> Provenance:
-        from formation_bench.benchmarks.provenance import git_info, now
+        from formation_bench.benchmarks.provenance import cpu_model, git_info, now, package_versions
 
         info = git_info()
+        versions = package_versions()
         return cls(
             version=info["version"],
             commit=info["commit"],
@@ -111,6 +118,11 @@ class Provenance:
             finished_at=now(),
             worker_host=socket.gethostname(),
             worker_pid=os.getpid(),
+            cpu_model=cpu_model(),
+            casadi_version=versions["casadi"],
+            osqp_version=versions["osqp"],
+            cvxpy_version=versions["cvxpy"],
+            ioh_version=versions["ioh"],
         )
 
 

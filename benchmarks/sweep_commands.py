@@ -13,23 +13,36 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from formation_bench.benchmarks.checks import LimitError, check_scheduler_address
+from formation_bench.benchmarks.checks import (
+    JOBS_PER_CPU,
+    LimitError,
+    check_optimizer,
+    check_scheduler_address,
+)
 from formation_bench.benchmarks.cli import _deadline, _seed, configured_optimizer
+from formation_bench.benchmarks.experiments.errors import StoreError, SweepError
+from formation_bench.benchmarks.experiments.executors import DEFAULT_WORKER_TIMEOUT_S
 from formation_bench.benchmarks.experiments.suite import (
     SuiteError,
     load_suite,
     shipped_suites,
 )
-from formation_bench.benchmarks.experiments.sweep import DEFAULT_JOBS, SweepError, plan, run_sweep
-from formation_bench.benchmarks.staging import OutputError, check_output_folder, staged_folder
+from formation_bench.benchmarks.experiments.sweep import DEFAULT_JOBS, plan, run_sweep
+from formation_bench.benchmarks.interrupts import is_interrupt
+from formation_bench.benchmarks.staging import (
+    OutputError,
+    check_output_folder,
+    staged_folder,
+    storage_advice,
+    storage_problem,
+)
 from formation_bench.plugins import PluginError
 
 
 def usage_errors() -> tuple[type[Exception], ...]:
-    """The errors a command reports in one line; the modules of the last two read and write
-    Parquet with pandas, so they are imported only when a command fails."""
+    """The errors a command reports in one line; the module of the last one reads and writes
+    Parquet with pandas, so it is imported only when a command fails."""
     from formation_bench.benchmarks.analysis.ioh_export import ExportError
-    from formation_bench.benchmarks.experiments.store import StoreError
 
     return (SuiteError, SweepError, StoreError, PluginError, LimitError, ExportError)
 
@@ -44,6 +57,16 @@ def _jobs(text: str) -> int:
     return value
 
 
+def _worker_timeout(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}")
+    return value
+
+
 def _scheduler(text: str) -> str:
     try:
         return check_scheduler_address(text)
@@ -55,12 +78,27 @@ def _guarded(command: str, func: Callable[[argparse.Namespace], int]):
     def run(args: argparse.Namespace) -> int:
         try:
             return func(args)
+        except (KeyboardInterrupt, SystemError):
+            raise  # for main(); matching usage_errors() would import pandas mid-interrupt
+        except ImportError as err:
+            if is_interrupt(err):  # an import cut short by Ctrl-C (pandas fails so)
+                raise KeyboardInterrupt from None
+            raise
         except usage_errors() as err:
             print(f"formation-bench {command}: error: {err}", file=sys.stderr)
             return 2
         except BrokenPipeError:  # output piped into e.g. `head`, which stopped reading
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
             return 0
+        except OSError as err:  # a write the file system refused, where no caller named more
+            problem = storage_problem(err)
+            if problem is None:
+                raise
+            print(
+                f"formation-bench {command}: error: {problem}; {storage_advice(err)}",
+                file=sys.stderr,
+            )
+            return 2
 
     return run
 
@@ -73,6 +111,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     except OutputError as err:
         raise SweepError(str(err)) from None
     suite = load_suite(args.suite)
+    if args.rebuild_manifest:
+        from formation_bench.benchmarks.experiments.manifest import rebuild_manifest
+
+        print(rebuild_manifest(suite, out))
+        return 0
     if args.dry_run:
         from formation_bench.benchmarks.experiments.store import ResultStore
 
@@ -91,6 +134,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         args.out,
         jobs=args.jobs,
         scheduler=args.scheduler,
+        worker_timeout_s=args.worker_timeout,
         progress=args.progress,
         allow_suite_change=args.allow_suite_change,
     )
@@ -112,7 +156,7 @@ def _score_budget(text: str) -> tuple[int | None, int | None]:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
-    from formation_bench.benchmarks.experiments.score import run_scores, score_runs
+    from formation_bench.benchmarks.experiments.score import run_scores, score_runs, stored_keys
     from formation_bench.plugins import loaded_plugins
 
     out = Path(args.out)
@@ -129,11 +173,26 @@ def cmd_score(args: argparse.Namespace) -> int:
         deadline_ms=args.deadline_ms,
         plugins=loaded_plugins(),
     )
+    optimizer = runs[0].optimizer()
+    for run in {run.budget_label: run for run in runs}.values():  # each budget once
+        check_optimizer(optimizer, run.budget(optimizer))  # the limits run and sweep apply
     start = time.perf_counter()
     done = 0
-    for run in run_scores(runs, out, jobs=args.jobs):
-        done += 1
-        print(f"  stored {run.optimizer_label} / {run.budget_label} / seed {run.seed}", flush=True)
+    try:
+        for run in run_scores(runs, out, jobs=args.jobs):
+            done += 1
+            print(
+                f"  stored {run.optimizer_label} / {run.budget_label} / seed {run.seed}", flush=True
+            )
+    except OSError as err:
+        problem = storage_problem(err, where=out / "score")
+        if problem is None:
+            raise
+        kept = len(stored_keys(out) & {run.key for run in runs})  # counted from the folder
+        raise SweepError(
+            f"--out: {problem}; {kept} of {len(runs)} score runs stored in {out / 'score'} and "
+            f"intact; {storage_advice(err)}"
+        ) from None
     print(
         f"{len(runs)} score runs ({done} new) of {runs[0].optimizer_label} on library "
         f"{runs[0].library_version} in {out}/score ({time.perf_counter() - start:.1f} s); "
@@ -145,7 +204,6 @@ def cmd_score(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     # the statistics and plotting libraries are imported only by the command that uses them
     from formation_bench.benchmarks.analysis.report import ReportError, make_report
-    from formation_bench.benchmarks.experiments.store import StoreError
 
     start = time.perf_counter()
     results = Path(args.results)
@@ -190,7 +248,6 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_export_ioh(args: argparse.Namespace) -> int:
     from formation_bench.benchmarks.analysis.ioh_export import ExportError, export_ioh
     from formation_bench.benchmarks.experiments.score import load_scores
-    from formation_bench.benchmarks.experiments.store import StoreError
 
     results = Path(args.results)
     if not (results / "score").is_dir():
@@ -201,7 +258,9 @@ def cmd_export_ioh(args: argparse.Namespace) -> int:
         raise ExportError(f"--zip: {archive} is a folder, not a file")
     if args.zip and archive.exists() and not args.overwrite:
         raise ExportError(f"--zip: {archive} exists; add --overwrite to replace it")
-    scores = load_scores(results)
+    # damaged score files are named as they are read; files used unverified once it is written
+    notices: list[str] = []
+    scores = load_scores(results, notice=notices.append)
     try:
         with staged_folder(folder, overwrite=args.overwrite) as staging:
             written = export_ioh(scores, staging)
@@ -214,6 +273,8 @@ def cmd_export_ioh(args: argparse.Namespace) -> int:
         f"algorithms, {sum(written.values())} runs; IOHanalyzer reads the folder "
         "(DataSetList) or the zip (upload)"
     )
+    for line in notices:
+        print(line, file=sys.stderr)
     return 0
 
 
@@ -248,7 +309,8 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         "--jobs",
         type=_jobs,
         default=DEFAULT_JOBS,
-        help=f"local worker processes, one thread each (default {DEFAULT_JOBS})",
+        help=f"local worker processes, one thread each (default {DEFAULT_JOBS}; at most "
+        f"{JOBS_PER_CPU} per CPU)",
     )
     sweep.add_argument(
         "--scheduler",
@@ -256,6 +318,14 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         type=_scheduler,
         help="send the runs to this Dask distributed scheduler (e.g. tcp://host:8786) "
         "instead of local workers; --jobs is then ignored",
+    )
+    sweep.add_argument(
+        "--worker-timeout",
+        metavar="SECONDS",
+        type=_worker_timeout,
+        default=DEFAULT_WORKER_TIMEOUT_S,
+        help="with --scheduler: stop (finished runs stored, resumable) when the scheduler has "
+        f"had no live worker for this long (default {DEFAULT_WORKER_TIMEOUT_S:g})",
     )
     sweep.add_argument(
         "--progress",
@@ -269,6 +339,12 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         help="add to a results folder written from a different version of the suite file",
     )
     sweep.add_argument("--dry-run", action="store_true", help="list the runs still to do and exit")
+    sweep.add_argument(
+        "--rebuild-manifest",
+        action="store_true",
+        help="write a damaged or missing manifest.json anew from the stored runs (which must "
+        "come from SUITE), then exit",
+    )
     sweep.set_defaults(func=_guarded("sweep", cmd_sweep))
 
     score = sub.add_parser(
@@ -299,7 +375,7 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         "--jobs",
         type=_jobs,
         default=DEFAULT_JOBS,
-        help=f"worker processes (default {DEFAULT_JOBS})",
+        help=f"worker processes (default {DEFAULT_JOBS}; at most {JOBS_PER_CPU} per CPU)",
     )
     score.set_defaults(func=_guarded("score", cmd_score))
 

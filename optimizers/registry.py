@@ -11,6 +11,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from formation_bench.fields import declared, validate_fields
 from formation_bench.optimizers.base import Optimizer
 from formation_bench.plugins import OPTIMIZER_GROUP, Registry
 
@@ -34,6 +35,16 @@ def _check_entry(name: str, entry: RegisteredOptimizer) -> None:
         raise TypeError(
             f"{name!r}: registered optimizers must implement formation_bench.optimizers.Optimizer"
         )
+    # a setting without a declaration could be neither checked nor listed: a bad --set value
+    # would then fail in the middle of a run instead of at the command line
+    undeclared = [f.name for f in dataclasses.fields(entry.optimizer) if declared(f) is None]
+    if undeclared:
+        raise TypeError(
+            f"{name!r}: declare {', '.join(undeclared)} of {type(entry.optimizer).__name__} "
+            "with formation_bench.fields.setting(default, doc=..., low=...), so that its "
+            "values are checked and listed"
+        )
+    validate_fields(entry.optimizer)
 
 
 OPTIMIZERS: Registry[RegisteredOptimizer] = Registry("optimizer", OPTIMIZER_GROUP, _check_entry)
@@ -65,7 +76,9 @@ def get_optimizer(name: str, /, **overrides: Any) -> Optimizer:
             f"unknown field(s) {', '.join(unknown)} for optimizer {name!r}; "
             f"fields: {', '.join(sorted(fields))}"
         )
-    return dataclasses.replace(optimizer, **overrides)  # type: ignore[type-var]
+    configured = dataclasses.replace(optimizer, **overrides)  # type: ignore[type-var]
+    validate_fields(configured)  # also for a class that does not do it in __post_init__
+    return configured
 
 
 def optimizer_names() -> list[str]:

@@ -9,6 +9,7 @@ import select
 import signal
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -110,11 +111,114 @@ CASES = [
     (["sweep", "paper", "--out", "{out}", "--scheduler", "tcp://host:99999"], "--scheduler"),
 ]  # fmt: skip
 
+SCORE = ["score", "--optimizer", "pso"]
+# the boundary of every command: output paths, worker counts, score's limits, suites without
+# runs, values that leave nothing to optimise, plugin settings and names registered twice
+BOUNDARY = [
+    # an empty, folder-less or over-long --out, for every command that takes one
+    ([*RUN, *SHORT, "--out", ""], "--out: empty path"),
+    ([*RUN, *SHORT, "--out", "."], "names no folder of its own"),
+    ([*RUN, *SHORT, "--out", "{long_name}"], "300 bytes"),
+    ([*RUN, *SHORT, "--out", "{long_path}"], "per path"),
+    (["reproduce", "--no-figures", "--out", ""], "--out: empty path"),
+    (["reproduce", "--no-figures", "--out", "{long_name}"], "300 bytes"),
+    (["sweep", "paper", "--out", ""], "--out: empty path"),
+    (["sweep", "paper", "--out", "{long_name}"], "300 bytes"),
+    (["sweep", "paper", "--out", "{long_path}"], "per path"),
+    ([*SCORE, "--out", ""], "--out: empty path"),
+    ([*SCORE, "--out", "{long_path}"], "per path"),
+    (["report", "{results}", "--out", ""], "--out: empty path"),
+    (["report", "{results}", "--out", "{long_name}"], "300 bytes"),
+    (["report", "{long_path}"], "DIR: the path"),
+    (["export-ioh", "{results}", "--out", "{long_name}"], "300 bytes"),
+    (["export-ioh", "{results}", "--out", "{long_path}"], "per path"),
+    # more local workers than the CPUs can run
+    (["sweep", "paper", "--out", "{out}", "--jobs", "500"], "--jobs: 500 is more than"),
+    ([*SCORE, "--out", "{out}", "--jobs", "500"], "--jobs: 500 is more than"),
+    # score: the limits run and sweep enforce, and the optimiser's own fields
+    ([*SCORE, "--budgets", "100000000", "--out", "{out}"], "max_evaluations=100000000"),
+    ([*SCORE, "--seeds", *map(str, range(20_000)), "--out", "{out}"], "--seeds: 20,000"),
+    ([*SCORE, "--deadline-ms", "1e9", "--out", "{out}"], "deadline_ms=1e+09"),
+    ([*SCORE, "--set", "population_size=1000000", "--out", "{out}"], "population_size"),
+    ([*SCORE, "--set", "max_iterations=100000000", "--out", "{out}"], "max_iterations"),
+    (["score", "--optimizer", "ipopt", "--set", "population_size=5", "--out", "{out}"],
+     "unknown field of optimizer 'ipopt'; its fields: acceptable_tol"),
+    ([*SCORE, "--set", "scenario.n_steps=5", "--out", "{out}"], "has no scenario"),
+    # a suite that matches no optimiser has no runs
+    (["sweep", "{no_optimizer_suite}", "--out", "{out}"], "matches no registered optimizer"),
+    (["sweep", "{optional_suite}", "--out", "{out}"], "'not-installed-search' is not registered"),
+    # each value allowed, together nothing to optimise
+    ([*RUN, "--set", "accel_bounds=(-1e300,1e300)", "--out", "{out}"], "accel_bounds"),
+    ([*RUN, "--set", "turn_rate_bounds=(-100,100)", "--out", "{out}"], "turn_rate_bounds"),
+    ([*RUN, "--set", "uav_accel_bounds=((-7,7),(-7,7),(-7,700))", "--out", "{out}"],
+     "uav_accel_bounds"),
+    ([*RUN, "--set", "w_dst=0", "--set", "w_trj=0", "--out", "{out}"], "both weights 0"),
+    ([*RUN, "--set", "delay_steps=1000", "--out", "{out}"], "no plan would reach"),
+    (["sweep", "{zero_weight_suite}", "--out", "{out}"], "both weights 0"),
+    # plugin settings are declared, checked and listed like the shipped ones
+    (["--plugin", "{readme_plugin}", "run", "--optimizer", "my-random-search",
+      "--set", "population_size=0", "--out", "{out}"], "--set population_size: expected"),
+    (["--plugin", "{plain_plugin}", "list"], "setting("),
+    # a name registered twice is refused by every command
+    (["--plugin", "{pso_plugin}", "list"], "'pso' is already registered"),
+    (["--plugin", "{pso_plugin}", *RUN, *SHORT, "--out", "{out}"], "'pso' is already registered"),
+    (["--plugin", "{pso_plugin}", "sweep", "paper", "--out", "{out}"],
+     "'pso' is already registered"),
+    (["--plugin", "{pso_plugin}", "report", "{results}"], "'pso' is already registered"),
+]  # fmt: skip
+CASES += BOUNDARY
+
+PLAIN_PLUGIN = """
+from dataclasses import dataclass
+
+from formation_bench.optimizers import Budget, Optimizer, register
+
+
+@dataclass(frozen=True)
+class Plain(Optimizer):
+    population_size: int = 8
+
+    @property
+    def default_budget(self) -> Budget:
+        return Budget(max_iterations=1)
+
+    def minimize(self, objective, bounds, rng, budget=None, x0=None):
+        raise NotImplementedError
+
+
+register("plain-search", Plain(), "a field without setting()")
+"""
+PSO_AGAIN = """
+from formation_bench.optimizers import get_optimizer, register
+
+register("pso", get_optimizer("pso"), "the same name again")
+"""
+
+
+def readme_plugin_source() -> str:
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", readme, flags=re.S)
+    return next(b for b in blocks if "register(" in b)
+
 
 @pytest.fixture(autouse=True)
 def cold_kernel_cache(monkeypatch):
     """As on a first run: the compile notice must not come before a refusal."""
     monkeypatch.setattr("formation_bench.benchmarks.cli.kernels_cached", lambda: False)
+
+
+@pytest.fixture(autouse=True)
+def no_plugin_left_behind():
+    """A plugin a case loads into this process is unloaded after it."""
+    from formation_bench import plugins
+    from formation_bench.optimizers import OPTIMIZERS
+
+    names, sources = set(OPTIMIZERS), set(plugins._plugins)
+    yield
+    for name in set(OPTIMIZERS) - names:
+        OPTIMIZERS.pop(name)
+    for source in set(plugins._plugins) - sources:
+        sys.modules.pop(plugins._plugins.pop(source).__name__, None)
 
 
 @pytest.fixture
@@ -143,7 +247,30 @@ def places(tmp_path: Path) -> dict[str, str]:
     )
     results = tmp_path / "results"
     (results / "runs").mkdir(parents=True)
+    (results / "score").mkdir()
+    no_optimizer_suite = tmp_path / "none.toml"
+    no_optimizer_suite.write_text('seeds = 1\n[[optimizers]]\nname = "*"\nexclude = ["*"]\n')
+    optional_suite = tmp_path / "optional.toml"
+    optional_suite.write_text(
+        'seeds = 1\n[[optimizers]]\nname = "not-installed-search"\noptional = true\n'
+    )
+    zero_weight_suite = tmp_path / "zero.toml"
+    zero_weight_suite.write_text(
+        'seeds = 1\n[[optimizers]]\nname = "pso"\n'
+        '[[scenarios]]\nname = "paper"\noverrides = { w_dst = 0.0, w_trj = 0.0 }\n'
+    )
+    plugins = {}
+    for name, source in (("readme", readme_plugin_source()), ("plain", PLAIN_PLUGIN),
+                         ("pso", PSO_AGAIN)):  # fmt: skip
+        plugins[f"{name}_plugin"] = str(tmp_path / f"{name}_plugin.py")
+        Path(plugins[f"{name}_plugin"]).write_text(source)
     return {
+        **plugins,
+        "long_name": str(tmp_path / ("a" * 300)),
+        "long_path": str(tmp_path / "/".join(["abcdefghi"] * 500)),
+        "no_optimizer_suite": str(no_optimizer_suite),
+        "optional_suite": str(optional_suite),
+        "zero_weight_suite": str(zero_weight_suite),
         "out": str(tmp_path / "out"),
         "file": str(afile),
         "full": str(full),
@@ -166,6 +293,10 @@ def snapshot(root: Path) -> dict[str, bytes]:
 
 def test_there_are_at_least_forty_distinct_cases():
     assert len({tuple(args) for args, _ in CASES}) == len(CASES) >= 40
+
+
+def test_the_boundary_has_at_least_twenty_five_distinct_cases():
+    assert len({tuple(args) for args, _ in BOUNDARY}) == len(BOUNDARY) >= 25
 
 
 @pytest.mark.parametrize(("args", "needle"), CASES, ids=lambda v: " ".join(v)[:60] if
@@ -204,18 +335,21 @@ def test_a_folder_that_is_not_writable_is_refused(tmp_path, monkeypatch, capsys)
     assert list(locked.iterdir()) == []
 
 
+LONG_RUN = ["run", "--optimizer", "modified-bso", "--no-trigger", "--set", "n_steps=100000"]
 INTERRUPTED = [
     # a run far too long to end by itself, into a new folder
-    (["run", "--optimizer", "modified-bso", "--no-trigger", "--set", "n_steps=100000"],
-     rb"[1-9][0-9]*/100000", False),
+    (LONG_RUN, rb"[1-9][0-9]*/100000", False, 1),
     # the paper runs replacing an old folder: the old folder must survive the interruption
-    (["reproduce", "--seeds", "0", "1", "2", "--overwrite"], rb"[1-9][0-9]*/240", True),
+    (["reproduce", "--seeds", "0", "1", "2", "--overwrite"], rb"[1-9][0-9]*/240", True, 1),
+    # Ctrl-C pressed twice: the second must not cut the first one's clean-up short
+    (LONG_RUN, rb"[1-9][0-9]*/100000", False, 2),
 ]  # fmt: skip
 
 
-@pytest.mark.parametrize(("args", "running", "existing"), INTERRUPTED, ids=["run", "reproduce"])
+@pytest.mark.parametrize(("args", "running", "existing", "presses"), INTERRUPTED,
+                         ids=["run", "reproduce", "run-twice"])  # fmt: skip
 def test_ctrl_c_exits_130_in_one_line_and_leaves_nothing_finished(
-    args, running, existing, tmp_path
+    args, running, existing, presses, tmp_path
 ):
     out = tmp_path / "out"
     if existing:
@@ -238,7 +372,8 @@ def test_ctrl_c_exits_130_in_one_line_and_leaves_nothing_finished(
         chunk = os.read(process.stderr.fileno(), 65536) if ready else b""
         assert chunk, f"the run ended or stalled before it started: {seen[-500:]!r}"
         seen += chunk
-    process.send_signal(signal.SIGINT)
+    for _ in range(presses):
+        process.send_signal(signal.SIGINT)
     _, rest = process.communicate(timeout=120)
     err = (seen + rest).decode(errors="replace")
     assert process.returncode == 130, err[-500:]
@@ -246,6 +381,66 @@ def test_ctrl_c_exits_130_in_one_line_and_leaves_nothing_finished(
     assert last.endswith(f"formation-bench {args[0]}: interrupted"), last
     assert "Traceback" not in err
     assert snapshot(tmp_path) == before  # no staging folder left, an old folder untouched
+
+
+def test_ctrl_c_while_the_command_imports_its_modules_exits_130_in_one_line():
+    # the interrupt arrives in the middle of the command line's imports, as a Ctrl-C pressed
+    # during the first half second would
+    script = textwrap.dedent("""
+        import signal, sys
+        sys.argv[0] = "formation-bench"
+
+        class InterruptAnImport:
+            def find_spec(self, name, path=None, target=None):
+                if name == "formation_bench.benchmarks.runner":
+                    signal.raise_signal(signal.SIGINT)
+                return None
+
+        sys.meta_path.insert(0, InterruptAnImport())
+        from formation_bench.benchmarks.cli import main
+        sys.exit(main(["list"]))
+    """)
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+    assert done.returncode == 130, done.stderr
+    assert done.stderr.strip() == "formation-bench: interrupted"
+
+
+def test_ctrl_c_while_a_plugin_loads_and_again_while_it_is_reported(tmp_path, monkeypatch, capsys):
+    from formation_bench.benchmarks import cli
+
+    plugin = tmp_path / "slow_plugin.py"
+    plugin.write_text("import signal\nsignal.raise_signal(signal.SIGINT)\n")
+    real = cli.is_interrupt
+
+    def pressed_again(error: BaseException) -> bool:
+        signal.raise_signal(signal.SIGINT)  # the second Ctrl-C, while the first is handled
+        return real(error)
+
+    monkeypatch.setattr(cli, "is_interrupt", pressed_again)
+    before = signal.getsignal(signal.SIGINT)
+    out = tmp_path / "out"
+    try:
+        code = main(["--plugin", str(plugin), *RUN, *SHORT, "--out", str(out)])
+    except KeyboardInterrupt:
+        pytest.fail("the second Ctrl-C escaped the command's handler")
+    assert code == 130
+    assert capsys.readouterr().err.strip() == "formation-bench run: interrupted"
+    assert not out.exists()
+    assert signal.getsignal(signal.SIGINT) is before  # a caller in its own process gets it back
+
+
+def test_ctrl_c_while_parsing_the_arguments_exits_130(monkeypatch, capsys):
+    from formation_bench.benchmarks import cli
+
+    def interrupted() -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert main(["list"]) == 130
+    assert capsys.readouterr().err.strip() == "formation-bench: interrupted"
 
 
 def test_outputs_get_ordinary_permissions(tmp_path):
@@ -291,18 +486,18 @@ def test_an_interrupt_reported_by_numba_as_a_system_error_is_an_interrupt():
 
 
 def test_a_sweep_run_raises_an_interrupt_and_returns_a_real_failure(monkeypatch):
-    from formation_bench.benchmarks.experiments import sweep
+    from formation_bench.benchmarks.experiments import executors
     from formation_bench.benchmarks.spec import RunSpec
     from formation_bench.mpc.scenario import get_scenario
     from formation_bench.optimizers import get_optimizer
 
     scenario = get_scenario("paper")
     spec = RunSpec.of("pso", get_optimizer("pso"), "paper", scenario, trigger=True, seed=0)
-    monkeypatch.setattr(sweep, "execute", lambda _: (_ for _ in ()).throw(boxed()))
+    monkeypatch.setattr(executors, "execute", lambda _: (_ for _ in ()).throw(boxed()))
     with pytest.raises(SystemError):  # in-process sweeps stop on it instead of storing it
-        sweep.execute_run(spec)
+        executors.execute_run(spec)
     monkeypatch.setattr(
-        sweep, "execute", lambda _: (_ for _ in ()).throw(SystemError("a real failure"))
+        executors, "execute", lambda _: (_ for _ in ()).throw(SystemError("a real failure"))
     )
-    result = sweep.execute_run(spec)
+    result = executors.execute_run(spec)
     assert result.row is None and "a real failure" in result.error

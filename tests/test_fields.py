@@ -526,3 +526,39 @@ def test_declared_defaults_are_the_previous_defaults(class_name: str):
     if optimizer is None:
         pytest.skip(f"no {class_name} is registered here (an adapter whose library is missing)")
     assert field_values(type(optimizer)()) == CLASS_DEFAULTS[class_name]
+
+
+@dataclasses.dataclass(frozen=True)
+class _DeclaredOnly(base.Optimizer):
+    """Declares its setting but never validates it itself (no ``Validated``)."""
+
+    population_size: int = setting(4, low=1, doc="Points per iteration")
+
+    @property
+    def default_budget(self) -> base.Budget:
+        return base.Budget(max_iterations=1)
+
+    def minimize(self, objective, bounds, rng, budget=None, x0=None):  # pragma: no cover
+        raise NotImplementedError
+
+
+@dataclasses.dataclass(frozen=True)
+class _Undeclared(_DeclaredOnly):
+    max_iterations: int = 3
+
+
+def test_the_registry_checks_declared_settings_and_refuses_undeclared_ones():
+    from formation_bench.optimizers import register
+
+    try:
+        register("declared-only", _DeclaredOnly(), "settings checked by the registry")
+        assert get_optimizer("declared-only", population_size=2).population_size == 2
+        with pytest.raises(ValueError, match=r"_DeclaredOnly\.population_size must be an integer"):
+            get_optimizer("declared-only", population_size=0)
+        with pytest.raises(ValueError, match=r"_DeclaredOnly\.population_size must be"):
+            register("declared-bad-default", _DeclaredOnly(population_size=0), "a bad default")
+        with pytest.raises(TypeError, match=r"declare max_iterations of _Undeclared with"):
+            register("undeclared", _Undeclared(), "a field without setting()")
+        assert "declared-bad-default" not in OPTIMIZERS and "undeclared" not in OPTIMIZERS
+    finally:
+        OPTIMIZERS.pop("declared-only", None)

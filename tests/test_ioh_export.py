@@ -204,16 +204,25 @@ def test_layout_matches_what_the_ioh_logger_writes(scored, tmp_path):
     name = "IOHprofiler_f1_formation_library_v1.json"
     logged = json.loads((logged_folder / name).read_text())
     mine = json.loads((mine_folder / name).read_text())
-    assert set(mine) == set(logged)
+    assert logged["version"] == ioh_export.IOH_FORMAT_VERSION, (
+        f"the installed ioh {ioh.__version__} writes format version {logged['version']}, the "
+        f"export writes {ioh_export.IOH_FORMAT_VERSION}'s: compare the layouts, then update "
+        "IOH_FORMAT_VERSION"
+    )
+    assert mine["version"] == logged["version"]
+    assert list(mine) == list(logged)  # the same keys in the same order
     for key in ("function_id", "function_name", "maximization", "attributes", "run_attributes"):
         assert mine[key] == logged[key]
+    assert list(mine["algorithm"]) == list(logged["algorithm"])
     assert mine["algorithm"]["name"] == logged["algorithm"]["name"]
-    assert mine["version"] == logged["version"] == ioh_export.IOH_FORMAT_VERSION
+    # experiment attributes: a list of one-key objects in both
+    assert logged["experiment_attributes"] == [{"library": "v1"}]
+    assert all(len(a) == 1 for a in mine["experiment_attributes"])
     (logged_scenario,), (mine_scenario,) = logged["scenarios"], mine["scenarios"]
-    assert set(mine_scenario) == set(logged_scenario)
+    assert list(mine_scenario) == list(logged_scenario)
     assert mine_scenario["path"] == logged_scenario["path"]
     for a, b in zip(mine_scenario["runs"], logged_scenario["runs"], strict=True):
-        assert set(a) == set(b) and set(a["best"]) == set(b["best"])
+        assert list(a) == list(b) and list(a["best"]) == list(b["best"])
         for key in ("instance", "evals", "seed", "j_star"):
             assert a[key] == b[key]
         assert a["best"]["evals"] == b["best"]["evals"]

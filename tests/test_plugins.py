@@ -23,15 +23,16 @@ from formation_bench.plugins import PluginError, Registry, load_plugin
 PLUGIN_OPTIMIZER = '''
 from dataclasses import dataclass
 
+from formation_bench.fields import Validated, setting
 from formation_bench.optimizers import Bounds, Budget, PopulationOptimizer, register
 
 
 @dataclass(frozen=True)
-class UniformSearch(PopulationOptimizer):
+class UniformSearch(Validated, PopulationOptimizer):
     """Uniform random search, as a user would write it outside the repository."""
 
-    population_size: int = 8
-    max_iterations: int = 3
+    population_size: int = setting(8, low=1, doc="Points drawn per iteration")
+    max_iterations: int = setting(3, low=0, doc="Iterations per solve")
 
     @property
     def default_budget(self) -> Budget:
@@ -232,3 +233,51 @@ def test_plugin_source_code_is_shown_in_the_readme():
     readme = (ROOT / "README.md").read_text()
     assert "formation_bench.optimizers" in readme and "--plugin" in readme
     assert textwrap.dedent('[project.entry-points."formation_bench.optimizers"]') in readme
+
+
+def one_line_refusal(done: subprocess.CompletedProcess, *needles: str) -> str:
+    assert done.returncode == 2, done.stderr
+    err = done.stderr.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    for needle in needles:
+        assert needle in err, err
+    return err
+
+
+def test_plugin_settings_are_listed_and_a_bad_value_is_refused_before_the_run(tmp_path):
+    plugin = tmp_path / "my_plugin.py"
+    plugin.write_text(PLUGIN_OPTIMIZER.format(name="file-search"))
+    listing = cli("--plugin", str(plugin), "list", "--fields", "file-search")
+    assert listing.returncode == 0, listing.stderr
+    assert "population_size = 8  (int; integer >= 1)" in listing.stdout
+    assert "Points drawn per iteration" in listing.stdout
+    out = tmp_path / "run"
+    done = cli(
+        "--plugin", str(plugin), "run", "--optimizer", "file-search",
+        "--set", "population_size=0", "--out", str(out),
+    )  # fmt: skip
+    err = one_line_refusal(done, "--set population_size", "integer >= 1")
+    assert err.endswith("got 0"), err
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_a_name_from_an_entry_point_and_a_plugin_is_refused_by_every_command(tmp_path):
+    site = make_distribution(tmp_path / "site", "fb_twice_plugin", "twice-search", "twice-scn")
+    plugin = tmp_path / "twice.py"
+    plugin.write_text(PLUGIN_OPTIMIZER.format(name="twice-search"))
+    results = tmp_path / "results"
+    (results / "runs").mkdir(parents=True)
+    (results / "score").mkdir()
+    commands = [
+        ["list"],
+        ["run", "--optimizer", "twice-search", "--no-figures", "--out", str(tmp_path / "r")],
+        ["sweep", "paper", "--out", str(tmp_path / "s")],
+        ["score", "--optimizer", "twice-search", "--out", str(tmp_path / "c")],
+        ["report", str(results), "--out", str(tmp_path / "p")],
+        ["export-ioh", str(results), "--out", str(tmp_path / "e")],
+    ]
+    for command in commands:
+        done = cli("--plugin", str(plugin), *command, env_path=site)
+        one_line_refusal(done, "'twice-search' is already registered by entry point", "twice.py")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results", "site", "twice.py"]

@@ -1,21 +1,29 @@
 """The README's 'Adding an optimiser' example works as printed."""
 
 import re
+import shlex
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from formation_bench.mpc.loop import simulate
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import OPTIMIZERS, Bounds, Budget, get_optimizer
 
+README = Path(__file__).parents[1] / "README.md"
+
+
+def readme_example() -> str:
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
+    return next(b for b in blocks if "register(" in b)
+
 
 def test_readme_optimizer_example_runs_in_the_closed_loop():
-    readme = (Path(__file__).parents[1] / "README.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", readme, flags=re.S)
-    example = next(b for b in blocks if "register(" in b)
     try:
-        exec(compile(example, "README.md", "exec"), {})
+        exec(compile(readme_example(), "README.md", "exec"), {})
         optimizer = get_optimizer("my-random-search")
         result = optimizer.minimize(
             lambda x: np.sum(x**2, axis=1),
@@ -27,5 +35,29 @@ def test_readme_optimizer_example_runs_in_the_closed_loop():
         assert result.nfev == 95 and result.fun == 0.0
         trace = simulate(get_scenario("paper", n_steps=5), optimizer, trigger=False, seed=0)
         assert trace.solved.all()
+        with pytest.raises(ValueError, match=r"RandomSearch\.population_size must be an integer"):
+            get_optimizer("my-random-search", population_size=0)
     finally:
         OPTIMIZERS.pop("my-random-search", None)
+
+
+def test_readme_plugin_settings_are_listed_and_its_refusal_is_printed_as_shown(tmp_path):
+    (tmp_path / "my_search.py").write_text(readme_example())
+    shown = re.search(r"```console\n\$ (formation-bench --plugin my_search\.py .*)\n(.*)\n```",
+                      README.read_text())  # fmt: skip
+    assert shown is not None, "the README shows a refused plugin setting"
+    command, printed = shlex.split(shown[1]), shown[2]
+    done = subprocess.run(
+        [sys.executable, "-m", "formation_bench.benchmarks.cli", *command[1:]],
+        capture_output=True, text=True, cwd=tmp_path, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip() == printed
+    assert not (tmp_path / "out").exists()
+    listing = subprocess.run(
+        [sys.executable, "-m", "formation_bench.benchmarks.cli", "--plugin", "my_search.py",
+         "list", "--fields", "my-random-search"],
+        capture_output=True, text=True, cwd=tmp_path, timeout=300,
+    )  # fmt: skip
+    assert listing.returncode == 0, listing.stderr
+    assert "population_size = 30  (int; integer >= 1)" in listing.stdout

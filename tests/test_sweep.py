@@ -10,6 +10,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+from formation_bench.benchmarks.experiments.manifest import write_manifest
 from formation_bench.benchmarks.experiments.store import (
     ResultStore,
     load_results,
@@ -270,7 +271,7 @@ def test_a_sweep_that_fails_or_was_killed_is_not_left_running(tmp_path, monkeypa
     # a sweep killed with SIGKILL leaves "running"; the next sweep holds the lock and knows
     manifest = json.loads((out / "manifest.json").read_text())
     manifest["sessions"][0]["state"] = "running"
-    (out / "manifest.json").write_text(json.dumps(manifest))
+    write_manifest(ResultStore(out), manifest)  # as the killed sweep wrote it, with its checksum
     monkeypatch.undo()
     sweep(tiny(seeds="1"), out)
     states = [s["state"] for s in json.loads((out / "manifest.json").read_text())["sessions"]]

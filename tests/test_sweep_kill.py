@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import psutil
 import pytest
@@ -130,3 +131,38 @@ def test_ctrl_c_stops_cleanly_and_leaves_a_resumable_folder(suite_file, tmp_path
     assert 0 < stored(out) < TOTAL
     state = load_results(out, strict=True)
     assert state["run_key"].is_unique
+
+
+@pytest.mark.slow
+def test_ctrl_c_at_random_moments_even_twice_exits_130_in_one_line(suite_file, tmp_path):
+    """Ctrl-C while the sweep imports, starts its workers or runs, and a second Ctrl-C
+    during the clean-up of the first: always exit 130, one line, no traceback."""
+    rng = np.random.default_rng(np.random.SeedSequence(0xC7C))
+    # long enough that the sweep is still running at the latest moment drawn (3 s): the
+    # 24-run suite can finish in 2.5 s on a warm machine
+    long_suite = tmp_path / "long.toml"
+    long_suite.write_text(SUITE.replace("seeds = 12", "seeds = 60"))
+    trials = 4
+    for trial in range(trials):
+        out, log = tmp_path / f"out{trial}", tmp_path / f"sweep{trial}.log"
+        proc = start_sweep(long_suite, out, log)
+        try:
+            try:
+                proc.wait(timeout=float(rng.uniform(0.3, 3.0)))  # the random moment
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGINT)
+            else:
+                pytest.fail(f"the sweep ended before it was interrupted: {log.read_text()}")
+            try:
+                proc.wait(timeout=float(rng.uniform(0.0, 0.3)))
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGINT)  # the second, during the clean-up
+            proc.wait(timeout=60)
+        finally:
+            kill_group(proc)
+        text = log.read_text()
+        assert proc.returncode == 130, text
+        assert "Traceback" not in text, text
+        assert "interrupted" in text.strip().splitlines()[-1]
+        if stored(out):
+            assert load_results(out, strict=True)["run_key"].is_unique

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from formation_bench.benchmarks.cli import main
+from formation_bench.benchmarks.experiments.executors import execute_run
 from formation_bench.benchmarks.experiments.suite import (
     SuiteError,
     load_suite,
@@ -16,7 +17,6 @@ from formation_bench.benchmarks.experiments.suite import (
     run_count,
     shipped_suites,
 )
-from formation_bench.benchmarks.experiments.sweep import execute_run
 from formation_bench.benchmarks.record import is_metric_column, is_timing_column
 from formation_bench.benchmarks.spec import canonical_json, config_of, sha256_hex
 from formation_bench.mpc.loop import simulate

@@ -40,9 +40,11 @@ import pandas as pd
 
 from formation_bench.benchmarks.analysis.scoring import relative_gap
 
-IOH_FORMAT_VERSION = "0.3.22"
-"""Version of ``ioh`` whose logger layout is written (IOHanalyzer reads JSON meta files
-from version 0.3.3 on)."""
+IOH_FORMAT_VERSION = "0.4.2"
+"""Version of ``ioh`` whose logger layout is written, and written as the format version (the
+logger writes its own version there; IOHanalyzer reads JSON meta files from version 0.3.3
+on). The logger of 0.3.22 writes the same files but for that number. The lock installs this
+``ioh``, and the layout test fails when the installed one writes another version."""
 SUITE = "formation-bench"
 HISTORY = ("improvement_nfev", "improvement_fun", "x")
 """Score columns the export needs (stored from score format 2 on)."""

@@ -4,8 +4,12 @@ A *score run* is one optimiser configuration at one budget with one seed, solvin
 instance of the library from its warm start. Its rows (one per instance: the final cost, the
 gap to ``J*``, evaluations, iterations, wall time, the evaluations to each target gap, the
 improvements of the best cost so far and the point returned) are stored as
-``DIR/score/<key>.parquet``, written atomically when the run is complete, so an interrupted
-``score`` resumes with the runs still missing (or stored in another :data:`SCORE_FORMAT`).
+``DIR/score/<key>.parquet``, written atomically when the run is complete and sealed like every
+file of the store (page checksums and a SHA-256 of the whole file naming the run's key; see
+:mod:`~formation_bench.benchmarks.experiments.store`), so an interrupted ``score`` resumes with
+the runs still missing, stored in another :data:`SCORE_FORMAT`, damaged, or stored before
+checksums were kept. :func:`load_scores` (what ``report`` and ``export-ioh`` read) leaves a
+damaged file out and names it on stderr.
 Runs go to local worker processes (joblib's loky backend). Instance ``k`` of a run draws its
 random numbers from ``SeedSequence([run entropy, k])``, so results do not depend on the worker
 count.
@@ -14,10 +18,9 @@ count.
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,9 +28,16 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from formation_bench.benchmarks.analysis.scoring import TARGETS, evaluations_to_target
+from formation_bench.benchmarks.experiments.errors import IntegrityError, StoreError
+from formation_bench.benchmarks.experiments.seal import (
+    check_run_keys,
+    decode,
+    read_sealed,
+    sealed_parquet,
+)
+from formation_bench.benchmarks.experiments.store import left_out, to_stderr, unverified_notice
 from formation_bench.benchmarks.instances.library import Library, shipped
 from formation_bench.benchmarks.outputs import atomic_write_bytes
 from formation_bench.benchmarks.spec import (
@@ -204,55 +214,78 @@ def improvements(history_nfev: np.ndarray, history_fun: np.ndarray) -> tuple[lis
 
 
 def stored_keys(out: Path) -> set[str]:
-    """Keys of the runs stored whole in the current :data:`SCORE_FORMAT`."""
+    """Keys of the runs stored whole, sealed, in the current :data:`SCORE_FORMAT`."""
     folder = out / SCORE
     if not folder.is_dir():
         return set()
-    return {p.stem for p in folder.glob("*.parquet") if _current_format(p)}
+    return {p.stem for p in folder.glob("*.parquet") if _stored_whole(p)}
 
 
-def _current_format(path: Path) -> bool:
+def _stored_whole(path: Path) -> bool:
     try:
-        formats = set(pq.read_table(path, columns=["score_format"]).column(0).to_pylist())
-    except Exception:  # unreadable, or written before the column existed: redone
+        data, seal = read_sealed(path, "score", path.stem)
+        table = decode(data, ["run_key", "score_format"])
+        check_run_keys(table, path.stem)
+    except IntegrityError:  # damaged, or another run's file: redone
         return False
-    return formats == {SCORE_FORMAT}
+    # a file without a seal (stored before checksums were kept) is redone, and sealed
+    return seal is not None and set(table.column("score_format").to_pylist()) == {SCORE_FORMAT}
 
 
 def write_score(out: Path, run: ScoreRun, frame: pd.DataFrame) -> Path:
     path = out / SCORE / f"{run.key}.parquet"
-    buffer = io.BytesIO()
-    pq.write_table(pa.Table.from_pandas(frame, preserve_index=False), buffer, compression="zstd")
-    atomic_write_bytes(path, buffer.getvalue())
+    data, _ = sealed_parquet(pa.Table.from_pandas(frame, preserve_index=False), "score", run.key)
+    atomic_write_bytes(path, data)
     return path
 
 
-def run_scores(runs: list[ScoreRun], out: Path, *, jobs: int = 2) -> Iterator[ScoreRun]:
-    """Carry out the runs not yet stored in ``out``; yields each as it is stored."""
+def run_scores(
+    runs: list[ScoreRun], out: Path, *, jobs: int = 2, library: Library | None = None
+) -> Iterator[ScoreRun]:
+    """Carry out the runs not stored whole in ``out`` (on ``library``, by default the shipped
+    one); yields each as it is stored."""
     todo = [run for run in runs if run.key not in stored_keys(out)]
     if jobs == 1 or len(todo) <= 1:
         for run in todo:
-            write_score(out, run, execute_score(run))
+            write_score(out, run, execute_score(run, library))
             yield run
         return
     from joblib import Parallel, delayed, parallel_config
 
     with parallel_config(backend="loky", inner_max_num_threads=1):
         parallel = Parallel(n_jobs=jobs, return_as="generator_unordered", batch_size=1)
-        for run, frame in parallel(delayed(_execute_pair)(run) for run in todo):
+        for run, frame in parallel(delayed(_execute_pair)(run, library) for run in todo):
             write_score(out, run, frame)
             yield run
 
 
-def _execute_pair(run: ScoreRun) -> tuple[ScoreRun, pd.DataFrame]:
-    return run, execute_score(run)
+def _execute_pair(run: ScoreRun, library: Library | None) -> tuple[ScoreRun, pd.DataFrame]:
+    return run, execute_score(run, library)
 
 
-def load_scores(out: Path | str) -> pd.DataFrame:
-    """Every stored score row of ``out``, one row per (run, instance)."""
+def load_scores(out: Path | str, *, notice: Callable[[str], None] = to_stderr) -> pd.DataFrame:
+    """Every intact stored score row of ``out``, one row per (run, instance).
+
+    A file that fails its checks is left out and named on stderr, one line each. How many
+    files were used unverified (stored before checksums were kept) goes to ``notice``.
+    """
     folder = Path(out) / SCORE
     paths = sorted(folder.glob("*.parquet")) if folder.is_dir() else []
-    if not paths:
-        raise FileNotFoundError(f"{out} holds no score runs (no {SCORE}/*.parquet)")
-    frame = pd.concat([pd.read_parquet(p) for p in paths], ignore_index=True)
+    redo = f"'formation-bench score' with the run's options and --out {out}"
+    frames = []
+    unverified = 0
+    for path in paths:
+        try:
+            data, seal = read_sealed(path, "score", path.stem)
+            table = decode(data)
+            check_run_keys(table, path.stem)
+        except IntegrityError as err:
+            left_out(path, str(err), redo)
+            continue
+        unverified += seal is None
+        frames.append(table.to_pandas())
+    unverified_notice(unverified, folder, redo, notice)
+    if not frames:
+        raise StoreError(f"{out} holds no score runs (no intact {SCORE}/*.parquet)")
+    frame = pd.concat(frames, ignore_index=True)
     return frame.sort_values(["optimizer", "budget", "seed", "instance"], ignore_index=True)

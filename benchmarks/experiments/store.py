@@ -5,16 +5,53 @@ Layout of a results folder ``DIR``::
     DIR/manifest.json            suite file, package versions, git commit, machine, sessions
     DIR/runs/<key>.parquet       one row: the run's identity and metrics (the "finished" mark)
     DIR/traces/<key>.parquet     the per-instant trace, when the suite asks for traces
+    DIR/score/<key>.parquet      score runs (:mod:`~formation_bench.benchmarks.experiments.score`)
 
 ``<key>`` is the hash of the run's identity
 (:attr:`formation_bench.benchmarks.spec.RunSpec.key`).
 Every file is written to a temporary name and renamed, and a trace is written
-before its run row, so a run row exists only for a finished run. On resume each
-row is read back whole; a file that cannot be read, holds the wrong run, was
-produced by a different configuration, or lacks its trace is redone.
+before its run row, so a run row exists only for a finished run.
+
+Every file proves it is intact. A Parquet file is written with page checksums (CRC-32 of
+each data page) and carries a *seal* in its footer's key-value metadata
+(:data:`~formation_bench.benchmarks.experiments.seal.SEAL_KEY`): JSON naming what the
+file holds (``kind``: run, trace or score, and the ``key`` it must be stored under) and,
+last, the SHA-256 of the whole file's bytes taken with that digest's own 64 characters set
+to ``0``. So every byte is covered, the footer and the metadata too, which page checksums
+leave out. A run file's seal also holds its trace's digest (``trace``), so a trace garbled,
+swapped for another run's or left from an earlier run of the same key is told apart.
+``manifest.json`` begins with ``manifest_seal`` and ends with ``manifest_sha256``, the
+SHA-256 of the file taken the same way; a manifest that lost either field is damaged, not
+taken for one written before checksums.
+
+Every reader verifies: resume (:meth:`ResultStore.status`, and ``score``'s
+:func:`~formation_bench.benchmarks.experiments.score.stored_keys`) checks the digest, the
+kind, the key against the file name, the page checksums and the row's own ``run_key``, and
+redoes a file that fails any of them (a trace is checked by its digest and the run's seal,
+without decoding it). :func:`load_results`, :func:`load_traces` and ``load_scores`` (what
+``report``, ``export-ioh`` and the notebook read) leave such a file out and name it on
+stderr, one line per file. A file whose content belongs to another key (copied under
+another run's name) fails the key check everywhere, so it is never counted twice.
+
+A damaged manifest (not UTF-8, not JSON, not an object, fields of the wrong type, a failed
+checksum) or one missing while ``runs/`` holds runs stops a sweep with one line naming it
+and the command that rebuilds it from the verified run rows,
+``formation-bench sweep SUITE --out DIR --rebuild-manifest``
+(:func:`~formation_bench.benchmarks.experiments.manifest.rebuild_manifest`).
+The manifest is never reset silently.
+
+Files written before seals were kept carry none: resume redoes them (state
+``unverified``), so a resumed folder ends fully sealed; the readers use them and say
+once, on stderr, how many were used unverified. A manifest with neither field is checked
+for its shape only, and gets its digest when the next sweep rewrites it.
+
+This module holds the folder's layout, its lock, the run and trace files and their readers;
+:mod:`~formation_bench.benchmarks.experiments.seal` makes and checks the seals and the
+manifest's digest, and :mod:`~formation_bench.benchmarks.experiments.manifest` reads, writes
+and rebuilds the manifest.
 
 Everything reads back as one pandas DataFrame (:func:`load_results`), and DuckDB
-reads the same files directly::
+reads the same files directly (the seal is footer metadata, not a column)::
 
     SELECT optimizer, trigger, median(tracking_error_max_m)
     FROM read_parquet('DIR/runs/*.parquet', union_by_name = true) GROUP BY ALL
@@ -24,18 +61,22 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import io
-import json
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 import pyarrow as pa
-import pyarrow.parquet as pq
 
+from formation_bench.benchmarks.experiments.errors import IntegrityError, StoreBusy, StoreError
+from formation_bench.benchmarks.experiments.seal import (
+    check_run_keys,
+    decode,
+    read_sealed,
+    sealed_parquet,
+)
 from formation_bench.benchmarks.outputs import atomic_write_bytes
 from formation_bench.benchmarks.record import RECORD_FORMAT, value_type
 
@@ -45,12 +86,32 @@ TRACES = "traces"
 LOCK = ".lock"
 
 
-class StoreError(RuntimeError):
-    """A results folder that cannot be used as asked (reported in one line)."""
+# --- notices of the readers --------------------------------------------------------------------
 
 
-class StoreBusy(StoreError):
-    """Another sweep holds the results folder."""
+def left_out(path: Path, reason: str, redo: str) -> None:
+    """Say on stderr, in one line, that a reader left a damaged file out."""
+    print(
+        f"warning: left out {path}: {reason}; the results read here do not include it "
+        f"({redo} redoes it)",
+        file=sys.stderr,
+    )
+
+
+def to_stderr(line: str) -> None:
+    print(line, file=sys.stderr)
+
+
+def unverified_notice(count: int, folder: Path, redo: str, notice: Callable[[str], None]) -> None:
+    """Say once that ``count`` files without a seal were used."""
+    if count:
+        notice(
+            f"note: {count} file(s) in {folder} were stored before checksums were kept and "
+            f"are used unverified ({redo} replaces them with sealed ones)"
+        )
+
+
+# --- the store ---------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -58,8 +119,9 @@ class RunStatus:
     """What the store holds for one run key."""
 
     state: str
-    """``done``, ``missing``, ``corrupt`` (unreadable or wrong contents), ``stale``
-    (another configuration) or ``no-trace`` (trace required but missing or unreadable)."""
+    """``done``, ``missing``, ``corrupt`` (fails its checksum, unreadable or wrong contents,
+    its trace too), ``stale`` (another configuration), ``unverified`` (stored before
+    checksums were kept) or ``no-trace`` (trace required but missing)."""
     detail: str = ""
 
 
@@ -119,30 +181,21 @@ class ResultStore:
         return removed
 
     def write_run(self, key: str, row: dict[str, Any], trace: pd.DataFrame | None) -> None:
-        """Store a finished run: its trace first (if any), then its row, each atomically."""
+        """Store a finished run: its trace first (if any), then its row, each atomically and
+        sealed; the row's seal holds the trace's digest."""
+        trace_digest = None
         if trace is not None:
-            atomic_write_bytes(self.trace_path(key), _parquet_bytes(pa.Table.from_pandas(trace)))
+            data, trace_digest = sealed_parquet(pa.Table.from_pandas(trace), "trace", key)
+            atomic_write_bytes(self.trace_path(key), data)
         table = pa.Table.from_pylist([row])
         for k, column in enumerate(table.schema):
             if pa.types.is_null(column.type):  # all-None column: give it a real type
                 kind = _ARROW_TYPES.get(value_type(column.name), pa.float64())
                 table = table.set_column(k, column.name, table.column(k).cast(kind))
-        atomic_write_bytes(self.run_path(key), _parquet_bytes(table))
-
-    def write_manifest(self, manifest: dict[str, Any]) -> None:
-        atomic_write_bytes(
-            self.manifest_path, (json.dumps(manifest, indent=2, default=str) + "\n").encode()
-        )
+        data, _ = sealed_parquet(table, "run", key, trace=trace_digest)
+        atomic_write_bytes(self.run_path(key), data)
 
     # reading --------------------------------------------------------------------------------------
-
-    def read_manifest(self) -> dict[str, Any] | None:
-        if not self.manifest_path.is_file():
-            return None
-        try:
-            return json.loads(self.manifest_path.read_text())
-        except (OSError, json.JSONDecodeError):
-            return None
 
     def status(self, key: str, config_hash: str, need_trace: bool) -> RunStatus:
         """Whether the run ``key`` is stored whole (see :class:`RunStatus`)."""
@@ -150,25 +203,32 @@ class ResultStore:
         if not path.exists():
             return RunStatus("missing")
         try:
-            table = pq.read_table(path)
+            data, seal = read_sealed(path, "run", key)
+            table = decode(data)
             if table.num_rows != 1:
                 return RunStatus("corrupt", f"{table.num_rows} rows")
+            check_run_keys(table, key)
             row = table.to_pylist()[0]
-        except Exception as err:  # any failure to read back means the file is not a result
-            return RunStatus("corrupt", f"{type(err).__name__}: {err}")
-        if row.get("run_key") != key:
-            return RunStatus("corrupt", f"holds run {row.get('run_key')!r}")
+        except IntegrityError as err:
+            return RunStatus("corrupt", str(err))
         if row.get("record_format") != RECORD_FORMAT:
             return RunStatus("stale", "stored by a version with other result columns")
         if row.get("config_hash") != config_hash:
             return RunStatus("stale", "configuration changed since it ran")
+        if seal is None:
+            return RunStatus("unverified", "stored before checksums were kept")
         if need_trace:
+            trace_path = self.trace_path(key)
+            if not trace_path.exists():
+                return RunStatus("no-trace", "trace missing")
             try:
-                trace = pq.read_table(self.trace_path(key))
-            except Exception as err:
-                return RunStatus("no-trace", f"{type(err).__name__}: {err}")
-            if trace.num_rows == 0:
-                return RunStatus("no-trace", "empty trace")
+                _, trace_seal = read_sealed(trace_path, "trace", key)
+            except IntegrityError as err:
+                return RunStatus("corrupt", f"trace: {err}")
+            if seal.get("trace") is None:
+                return RunStatus("no-trace", "stored without a trace")
+            if trace_seal is None or trace_seal.get("sha256") != seal["trace"]:
+                return RunStatus("corrupt", "trace: not the trace stored with the run")
         return RunStatus("done")
 
     def keys(self) -> list[str]:
@@ -181,29 +241,35 @@ class ResultStore:
 _ARROW_TYPES = {int: pa.int64(), str: pa.string(), bool: pa.bool_()}
 
 
-def _parquet_bytes(table: pa.Table) -> bytes:
-    buffer = io.BytesIO()
-    pq.write_table(table, buffer, compression="zstd")
-    return buffer.getvalue()
+def load_results(
+    root: Path | str, *, strict: bool = False, notice: Callable[[str], None] = to_stderr
+) -> pd.DataFrame:
+    """Every intact stored run of ``root`` as one DataFrame, one row per run, sorted by
+    identity.
 
-
-def load_results(root: Path | str, *, strict: bool = False) -> pd.DataFrame:
-    """Every stored run of ``root`` as one DataFrame, one row per run, sorted by identity.
-
-    Unreadable files are skipped (a warning goes to stderr), or raise with ``strict``.
+    A file that fails its checks is left out and named on stderr (one line each), or raises
+    :class:`IntegrityError` with ``strict``. How many files were used unverified (stored
+    before checksums were kept) goes to ``notice``, in one line.
     """
     store = ResultStore(root)
     if not store.runs_dir.is_dir():
         raise StoreError(f"{root} holds no results (no {RUNS}/ folder); run a sweep into it first")
     frames = []
+    unverified = 0
     for key in store.keys():
         path = store.run_path(key)
         try:
-            frames.append(pq.read_table(path).to_pandas())
-        except Exception as err:
+            data, seal = read_sealed(path, "run", key)
+            table = decode(data)
+            check_run_keys(table, key)
+        except IntegrityError as err:
             if strict:
-                raise
-            print(f"warning: skipped unreadable {path}: {err}", file=sys.stderr)
+                raise IntegrityError(f"{path}: {err}") from None
+            left_out(path, str(err), f"a sweep of its suite into {root}")
+            continue
+        unverified += seal is None
+        frames.append(table.to_pandas())
+    unverified_notice(unverified, store.runs_dir, f"a sweep of their suite into {root}", notice)
     if not frames:
         raise StoreError(f"{root} holds no finished runs")
     frame = pd.concat(frames, ignore_index=True)
@@ -215,17 +281,55 @@ def load_results(root: Path | str, *, strict: bool = False) -> pd.DataFrame:
     return frame.sort_values(order, kind="stable", ignore_index=True)
 
 
-def load_traces(root: Path | str, keys: list[str] | None = None) -> pd.DataFrame:
-    """The stored traces (all, or of ``keys``) as one long DataFrame with a ``run_key`` column."""
+def load_traces(
+    root: Path | str,
+    keys: list[str] | None = None,
+    *,
+    strict: bool = False,
+    notice: Callable[[str], None] = to_stderr,
+) -> pd.DataFrame:
+    """The stored traces (all, or of ``keys``) as one long DataFrame with a ``run_key`` column.
+
+    A trace is read only with its run: it must be the trace whose digest the run's seal
+    holds. One that is not (or whose run is not stored whole) is left out and named on
+    stderr, or raises :class:`IntegrityError` with ``strict``.
+    """
     store = ResultStore(root)
     frames = []
+    unverified = 0
     wanted = (
         keys if keys is not None else sorted(p.stem for p in store.traces_dir.glob("*.parquet"))
     )
     for key in wanted:
-        frame = pd.read_parquet(store.trace_path(key))
+        path = store.trace_path(key)
+        try:
+            frame, sealed = _verified_trace(store, key)
+        except IntegrityError as err:
+            if strict:
+                raise IntegrityError(f"{path}: {err}") from None
+            left_out(path, str(err), f"a sweep of its suite into {root}")
+            continue
+        unverified += not sealed
         frame.insert(0, "run_key", key)
         frames.append(frame)
+    unverified_notice(unverified, store.traces_dir, f"a sweep of their suite into {root}", notice)
+    if not frames and wanted:
+        raise StoreError(f"{root} holds no intact trace of the {len(wanted)} run(s) asked for")
     if not frames:
         raise StoreError(f"{root} holds no traces (set trace = true in the suite)")
     return pd.concat(frames, ignore_index=True)
+
+
+def _verified_trace(store: ResultStore, key: str) -> tuple[pd.DataFrame, bool]:
+    """The trace of ``key`` checked against its run's seal, and whether it was sealed."""
+    path = store.trace_path(key)
+    if not path.exists():
+        raise IntegrityError("no such trace")
+    try:
+        _, run_seal = read_sealed(store.run_path(key), "run", key)
+    except IntegrityError as err:
+        raise IntegrityError(f"its run file is not stored whole ({err})") from None
+    data, seal = read_sealed(path, "trace", key)
+    if run_seal is not None and (seal is None or run_seal.get("trace") != seal.get("sha256")):
+        raise IntegrityError("not the trace stored with its run")
+    return decode(data).to_pandas(), seal is not None

@@ -230,6 +230,14 @@ class _Validator:
         if not isinstance(trace, bool):
             raise self.fail(("trace",), f"must be true or false, got {trace!r}")
         optimizers, notes = self.optimizers()
+        if not optimizers:
+            why = "; ".join(notes) or f"its {ALL_OPTIMIZERS!r} entries exclude every one"
+            raise self.fail(
+                ("optimizers",),
+                f"suite {name!r} matches no registered optimizer ({why}), so it has no runs "
+                "and would store nothing; name an optimizer that is registered here (see "
+                "'formation-bench list')",
+            )
         scenarios = self.scenarios()
         for entry in scenarios:
             self.check_settle_time(entry)

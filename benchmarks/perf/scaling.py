@@ -28,9 +28,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+from formation_bench.benchmarks.experiments.executors import run_locally
 from formation_bench.benchmarks.experiments.store import load_results
 from formation_bench.benchmarks.experiments.suite import parse_suite
-from formation_bench.benchmarks.experiments.sweep import run_locally, run_sweep
+from formation_bench.benchmarks.experiments.sweep import run_sweep
 from formation_bench.benchmarks.provenance import machine_info
 
 SUITE = """\

@@ -1,7 +1,7 @@
 """Adapters that run other libraries' optimisers through the formation-bench interface.
 
 nevergrad (``ng-*``), pycma (``pycma``) and mealpy (``mealpy-*``), all installed by
-the ``adapters`` extra: ``pip install "formation-bench[adapters]"``. Importing this
+the ``adapters`` extra (:data:`~.common.INSTALL_HINT`). Importing this
 package imports none of them (they take seconds to load): each configuration is
 registered when its library can be found, and otherwise noted as missing, so that
 asking for it names the extra to install. A library is imported when a solve starts.

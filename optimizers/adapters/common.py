@@ -12,9 +12,11 @@ from types import ModuleType
 import numpy as np
 
 EXTRA = "adapters"
-"""The extra that installs every adapted library: ``pip install "formation-bench[adapters]"``."""
+"""The extra that installs every adapted library."""
 
-INSTALL_HINT = f'pip install "formation-bench[{EXTRA}]"'
+INSTALL_HINT = f'pip install -c requirements/lock.txt ".[{EXTRA}]" in a clone of formation-bench'
+"""How to install the extra: from a clone (the package is not on an index), at the locked
+versions (nevergrad's NGOpt needs the lock's numpy)."""
 
 
 def library_available(module: str) -> bool:
@@ -46,6 +48,33 @@ def global_random_state_kept() -> Iterator[None]:
         yield
     finally:
         np.random.set_state(state)  # noqa: NPY002
+
+
+class SolveGlobalRandomState:
+    """numpy's global random state as a solve's library code sees it.
+
+    Some library code draws from numpy's global state however it is seeded (nevergrad's
+    meta-model builds optimisers that seed themselves from it). Inside :meth:`active` the
+    global state is the solve's own, seeded from ``seed`` and carried from call to call;
+    outside it, the caller's is put back. So those draws depend on the solve's seed alone,
+    and the caller's global state is left as it was.
+    """
+
+    def __init__(self, seed: int) -> None:
+        # MT19937 through a SeedSequence: not the stream of RandomState(seed), which the
+        # library may be given as well
+        generator = np.random.MT19937(np.random.SeedSequence(seed))
+        self._state = np.random.RandomState(generator).get_state()
+
+    @contextlib.contextmanager
+    def active(self) -> Iterator[None]:
+        caller = np.random.get_state()  # noqa: NPY002 - kept to be put back, never drawn from
+        np.random.set_state(self._state)  # noqa: NPY002
+        try:
+            yield
+        finally:
+            self._state = np.random.get_state()  # noqa: NPY002
+            np.random.set_state(caller)  # noqa: NPY002
 
 
 def library_seed(rng: np.random.Generator) -> int:

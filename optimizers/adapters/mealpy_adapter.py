@@ -2,8 +2,8 @@
 
 Van Thieu, N. & Mirjalili, S. (2023), *MEALPY: An open-source library for latest
 meta-heuristic algorithms in Python*, Journal of Systems Architecture 139,
-https://github.com/thieu1995/mealpy. Needs the ``adapters`` extra (``pip install
-"formation-bench[adapters]"``); mealpy is imported when a solve starts. Written
+https://github.com/thieu1995/mealpy. Needs the ``adapters`` extra
+(:data:`~.common.INSTALL_HINT`); mealpy is imported when a solve starts. Written
 against mealpy 3.0's ``Optimizer`` (``check_problem``, ``evolve``, ...).
 
 **Batches.** mealpy evaluates one point per call in its default mode. In its

@@ -2,8 +2,8 @@
 
 Rapin, J. & Teytaud, O. (2018), *Nevergrad - A gradient-free optimization
 platform*, https://github.com/facebookresearch/nevergrad. Needs the ``adapters``
-extra (``pip install "formation-bench[adapters]"``); nevergrad is imported when a
-solve starts, not when this module is.
+extra (:data:`~.common.INSTALL_HINT`); nevergrad is imported when a solve starts,
+not when this module is.
 
 **Batches.** The optimiser is built with ``num_workers = batch_size``, so it
 plans for that many candidates in flight (NGOpt picks its algorithm knowing
@@ -28,18 +28,22 @@ from the passed Generator, which is where nevergrad's optimisers draw their
 numbers (the sub-optimisers NGOpt builds, and pycma inside nevergrad's CMA,
 are seeded from it): same Generator, same solve. Building a bounded array
 draws one number from numpy's global state (for a random state nevergrad
-replaces at once); the adapter puts the global state back, so a solve leaves
-it as it was. (nevergrad's Voronoi-crossover DE and some of its portfolios
-draw from the global state; the adapter does not offer them.)
+replaces at once); the adapter puts the global state back. NGOpt's meta-model
+(which it picks for small problems) builds optimisers that seed themselves
+from numpy's global state at every ask: the optimiser is built, asked and told
+with the global state swapped for one seeded from the same Generator
+(:class:`~.common.SolveGlobalRandomState`), so those draws are repeatable too
+and a solve leaves the caller's global state as it was.
 
 **numpy 2.4.** nevergrad 1.0.12 (the newest release as of November 2026)
-fails inside its meta-model optimisers with numpy >= 2.4, which refuses
-``float()`` of a one-element array; NGOpt picks a meta-model for small
-problems (measured with numpy 2.4.6: every budget from 31 to 3000
-evaluations at n = 4, 400 evaluations at n = 10; CMA, which works, at n = 10
-and 20 from 1230 evaluations on). The adapter turns that failure into a
-:class:`~.common.LibraryIncompatibility` naming the versions; with numpy < 2.4,
-or for another algorithm (``ng-de``), it does not arise.
+fails inside its meta-model with numpy >= 2.4, which refuses ``float()`` of
+a one-element array; NGOpt picks a meta-model for small problems (measured
+with numpy 2.4.6: every budget from 31 to 3000 evaluations at n = 4, 400
+evaluations at n = 10; CMA, which works, at n = 10 and 20 from 1230
+evaluations on). The project's lock holds a numpy below 2.4
+(``requirements/known-breaks.txt``); with a newer numpy the adapter raises a
+:class:`~.common.LibraryIncompatibility` naming the versions instead of
+nevergrad's TypeError. Another algorithm (``ng-de``) does not meet it.
 
 **Costs.** Non-finite costs are told as a finite penalty above every finite
 cost seen (:func:`~.common.finite_costs`).
@@ -56,6 +60,7 @@ import numpy as np
 from formation_bench.fields import Validated, setting
 from formation_bench.optimizers.adapters.common import (
     LibraryIncompatibility,
+    SolveGlobalRandomState,
     finite_costs,
     global_random_state_kept,
     import_library,
@@ -84,6 +89,8 @@ class NevergradState(NamedTuple):
     """The ``nevergrad.optimizers`` instance."""
     worst: float
     """Worst finite cost seen so far (-inf before any), for the penalty of non-finite ones."""
+    global_state: SolveGlobalRandomState
+    """numpy's global random state the optimiser is asked and told under."""
 
 
 @dataclass(frozen=True)
@@ -132,14 +139,18 @@ class NevergradOptimizer(Validated, PopulationOptimizer[NevergradState]):
         # (replaced just below)
         with global_random_state_kept():
             parametrization = ng.p.Array(init=start, lower=bounds.lower, upper=bounds.upper)
-        parametrization.random_state = np.random.RandomState(library_seed(rng))
+        seed = library_seed(rng)
+        parametrization.random_state = np.random.RandomState(seed)
+        global_state = SolveGlobalRandomState(seed)
         total = min(counter.remaining, self.batch_size * (max_iterations + 1))
-        optimizer = ng.optimizers.registry[self.algorithm](
-            parametrization=parametrization, budget=total, num_workers=self.batch_size
-        )
-        if x0 is not None:
-            optimizer.suggest(x0)
-        return self.step(NevergradState(optimizer, -np.inf), counter, bounds, rng, 0)
+        with global_state.active():
+            optimizer = ng.optimizers.registry[self.algorithm](
+                parametrization=parametrization, budget=total, num_workers=self.batch_size
+            )
+            if x0 is not None:
+                optimizer.suggest(x0)
+        state = NevergradState(optimizer, -np.inf, global_state)
+        return self.step(state, counter, bounds, rng, 0)
 
     def step(
         self,
@@ -151,7 +162,9 @@ class NevergradOptimizer(Validated, PopulationOptimizer[NevergradState]):
     ) -> NevergradState:
         optimizer = state.optimizer
         try:
-            candidates = [optimizer.ask() for _ in range(min(self.batch_size, counter.remaining))]
+            with state.global_state.active():
+                asked = min(self.batch_size, counter.remaining)
+                candidates = [optimizer.ask() for _ in range(asked)]
         except TypeError as err:
             if "only 0-dimensional arrays" not in str(err):
                 raise
@@ -160,9 +173,10 @@ class NevergradOptimizer(Validated, PopulationOptimizer[NevergradState]):
             return state
         points = bounds.clip(np.array([c.value for c in candidates], dtype=np.float64))
         costs, worst = finite_costs(counter(points), state.worst)
-        for candidate, cost in zip(candidates, costs.tolist(), strict=True):
-            optimizer.tell(candidate, cost)
-        return NevergradState(optimizer, worst)
+        with state.global_state.active():
+            for candidate, cost in zip(candidates, costs.tolist(), strict=True):
+                optimizer.tell(candidate, cost)
+        return NevergradState(optimizer, worst, state.global_state)
 
     def result_info(self, state: NevergradState) -> dict[str, Any]:
         """The algorithm NGOpt (or another wrapper) chose, when nevergrad says."""
@@ -177,6 +191,7 @@ def _metamodel_failure(optimizer: Any) -> str:
     return (
         f"nevergrad {version('nevergrad')}'s {chosen} failed with numpy {np.__version__}: its "
         "meta-model converts one-element arrays with float(), which numpy >= 2.4 refuses. "
-        "NGOpt picks a meta-model for small dimensions or budgets; use numpy < 2.4, a larger "
-        "budget, or another algorithm (ng-de)"
+        "NGOpt picks a meta-model for small dimensions or budgets; install the locked numpy "
+        "(pip install -c requirements/lock.txt numpy, in the clone), or use a larger budget or "
+        "another algorithm (ng-de)"
     )

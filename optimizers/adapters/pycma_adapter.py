@@ -1,8 +1,8 @@
 """pycma's CMA-ES (``cma.CMAEvolutionStrategy``) behind the formation-bench interface.
 
 Hansen, N., Akimoto, Y. & Baudis, P., *CMA-ES/pycma*,
-https://github.com/CMA-ES/pycma. Needs the ``adapters`` extra (``pip install
-"formation-bench[adapters]"``); pycma is imported when a solve starts.
+https://github.com/CMA-ES/pycma. Needs the ``adapters`` extra
+(:data:`~.common.INSTALL_HINT`); pycma is imported when a solve starts.
 
 **Coordinates and bounds.** pycma searches the box normalised to [0, 1]^n
 with the box as its ``bounds`` option, so pycma's own bound handling

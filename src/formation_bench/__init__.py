@@ -14,11 +14,20 @@ The installed namespace holds three packages:
 
 from __future__ import annotations
 
-from importlib import metadata
-
-try:
-    __version__ = metadata.version("formation-bench")
-except metadata.PackageNotFoundError:  # imported from a source tree that was never installed
-    __version__ = "0+unknown"
-
 __all__ = ["__version__"]
+
+
+def __getattr__(name: str) -> str:
+    # looked up on first use: importlib.metadata takes longer to import than the rest of the
+    # package's start, and until the command line has installed its Ctrl-C handler an
+    # interrupt prints a traceback
+    if name != "__version__":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    from importlib import metadata
+
+    try:
+        version = metadata.version("formation-bench")
+    except metadata.PackageNotFoundError:  # imported from a source tree that was never installed
+        version = "0+unknown"
+    globals()["__version__"] = version
+    return version

@@ -35,9 +35,21 @@ class PluginError(RuntimeError):
     """A plugin that cannot be loaded; the message names it and why."""
 
 
+class DuplicateNameError(ValueError):
+    """A name registered twice; the message names who registered it first."""
+
+
 _loaded_groups: set[str] = set()
 _loading_groups: set[str] = set()
 _plugins: dict[str, ModuleType] = {}
+_loading: list[str] = []
+"""What is being imported now (innermost last), so that a registry can say who registered a
+name: an entry point or a ``--plugin``."""
+
+
+def registering_source() -> str:
+    """Who is registering names at this moment, for messages about duplicates."""
+    return _loading[-1] if _loading else "formation-bench itself"
 
 
 def load_entry_points(group: str) -> None:
@@ -47,14 +59,17 @@ def load_entry_points(group: str) -> None:
     _loading_groups.add(group)
     try:
         for entry in metadata.entry_points(group=group):
+            source = (
+                f"entry point {entry.name!r} = {entry.value!r} of group {group!r} "
+                f"(from {entry.dist.name if entry.dist else 'an unknown package'})"
+            )
+            _loading.append(source)
             try:
                 entry.load()
             except Exception as err:
-                raise PluginError(
-                    f"entry point {entry.name!r} = {entry.value!r} of group {group!r} "
-                    f"(from {entry.dist.name if entry.dist else 'an unknown package'}) failed "
-                    f"to load: {type(err).__name__}: {err}"
-                ) from err
+                raise PluginError(f"{source} failed to load: {_reason(err)}") from err
+            finally:
+                _loading.pop()
         _loaded_groups.add(group)
     finally:
         _loading_groups.discard(group)
@@ -68,22 +83,37 @@ def load_plugin(source: str) -> ModuleType:
     if source in _plugins:
         return _plugins[source]
     path = Path(source)
-    if source.endswith(".py") or path.is_file():
-        module = _load_file(source, path)
-    else:
-        try:
-            module = importlib.import_module(source)
-        except ModuleNotFoundError as err:
-            if err.name is not None and source.startswith(err.name):
-                raise PluginError(
-                    f"--plugin {source}: no module named {err.name!r} (give an importable module "
-                    "name or the path of a .py file)"
-                ) from None
-            raise PluginError(f"--plugin {source}: {type(err).__name__}: {err}") from err
-        except Exception as err:
-            raise PluginError(f"--plugin {source}: {type(err).__name__}: {err}") from err
+    _loading.append(f"--plugin {source}")
+    try:
+        if source.endswith(".py") or path.is_file():
+            module = _load_file(source, path)
+        else:
+            module = _import_module(source)
+    finally:
+        _loading.pop()
     _plugins[source] = module
     return module
+
+
+def _import_module(source: str) -> ModuleType:
+    try:
+        return importlib.import_module(source)
+    except ModuleNotFoundError as err:
+        if err.name is not None and source.startswith(err.name):
+            raise PluginError(
+                f"--plugin {source}: no module named {err.name!r} (give an importable module "
+                "name or the path of a .py file)"
+            ) from None
+        raise PluginError(f"--plugin {source}: {_reason(err)}") from err
+    except Exception as err:
+        raise PluginError(f"--plugin {source}: {_reason(err)}") from err
+
+
+def _reason(err: Exception) -> str:
+    """Why a plugin failed, in one line: a refused name as it is, anything else with its type."""
+    if isinstance(err, DuplicateNameError):
+        return str(err)
+    return f"{type(err).__name__}: {err}"
 
 
 def _load_file(source: str, path: Path) -> ModuleType:
@@ -104,7 +134,7 @@ def _load_file(source: str, path: Path) -> ModuleType:
         spec.loader.exec_module(module)
     except Exception as err:
         del sys.modules[name]
-        raise PluginError(f"--plugin {source}: {type(err).__name__}: {err}") from err
+        raise PluginError(f"--plugin {source}: {_reason(err)}") from err
     return module
 
 
@@ -116,7 +146,14 @@ def loaded_plugins() -> tuple[str, ...]:
 
 
 def load_plugins(sources: tuple[str, ...] | list[str]) -> None:
-    """:func:`load_plugin` for each source (how workers repeat what the command loaded)."""
+    """The installed entry points, then :func:`load_plugin` for each source (how commands
+    and their workers load what they may look up).
+
+    Entry points first and always, so that a name registered both by an installed package
+    and by a ``--plugin`` is refused by every command, not only by those that list names.
+    """
+    load_entry_points(OPTIMIZER_GROUP)
+    load_entry_points(SCENARIO_GROUP)
     for source in sources:
         load_plugin(source)
 
@@ -137,6 +174,7 @@ class Registry(MutableMapping[str, T], Generic[T]):
         """The entry-point group loaded before the first lookup."""
         self._check = check
         self._entries: dict[str, T] = {}
+        self._sources: dict[str, str] = {}
         self._missing: dict[str, str] = {}
 
     def _load(self) -> None:
@@ -151,10 +189,15 @@ class Registry(MutableMapping[str, T], Generic[T]):
         ):
             raise ValueError(f"{self.kind} name must be alphanumeric with '-' or '_', got {name!r}")
         if name in self._entries:
-            raise ValueError(f"{self.kind} name {name!r} is already registered")
+            raise DuplicateNameError(
+                f"{self.kind} name {name!r} is already registered by "
+                f"{self._sources.get(name, 'formation-bench itself')}; give one of them "
+                "another name"
+            )
         if self._check is not None:
             self._check(name, entry)
         self._entries[name] = entry
+        self._sources[name] = registering_source()
         return entry
 
     def add_missing(self, name: str, reason: str) -> None:
@@ -183,6 +226,7 @@ class Registry(MutableMapping[str, T], Generic[T]):
 
     def __delitem__(self, name: str) -> None:
         del self._entries[name]
+        self._sources.pop(name, None)
 
     def __contains__(self, name: object) -> bool:
         if name not in self._entries:
