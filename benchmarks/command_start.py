@@ -28,10 +28,12 @@ def interrupted_while_starting(signum: int, frame: object) -> None:
 
 
 def is_the_command() -> bool:
-    """Whether this process was started as the ``formation-bench`` command."""
+    """Whether this process was started as the ``formation-bench`` command: its script, or
+    ``python -m`` of the command line's module (which may be a source tree's copy of it, not
+    the installed one this module belongs to)."""
     started_as = os.path.abspath(sys.argv[0]) if sys.argv and sys.argv[0] else ""
-    cli_file = os.path.join(os.path.dirname(os.path.abspath(__file__)), "cli.py")
-    return os.path.basename(started_as) == "formation-bench" or started_as == cli_file
+    parts = started_as.split(os.sep)
+    return parts[-1] == "formation-bench" or parts[-2:] == ["benchmarks", "cli.py"]
 
 
 if is_the_command() and signal.getsignal(signal.SIGINT) is signal.default_int_handler:

@@ -13,6 +13,7 @@ import socket
 import sys
 import time
 import traceback
+import warnings
 from collections.abc import Generator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -77,13 +78,27 @@ def run_locally(specs: list[RunSpec], jobs: int) -> Generator[RunResult, None, N
         return
     from joblib import Parallel, delayed, parallel_config
 
-    with parallel_config(backend="loky", inner_max_num_threads=1):
+    # After a Ctrl-C, joblib warns that it drops the runs its workers finished but had not
+    # handed back (the next sweep redoes them), and loky's resource tracker, a process of its
+    # own that outlives the command, reports the semaphores of the killed workers it then
+    # removes: both would follow the command's one line. The tracker takes its warning
+    # options from this process's.
+    if TRACKER_CLEAN_UP_WARNING not in sys.warnoptions:
+        sys.warnoptions.append(TRACKER_CLEAN_UP_WARNING)
+    with parallel_config(backend="loky", inner_max_num_threads=1), warnings.catch_warnings():
+        warnings.filterwarnings("ignore", DROPPED_RESULTS_WARNING, UserWarning)
         parallel = Parallel(
             n_jobs=jobs, return_as="generator_unordered", batch_size=1, pre_dispatch="2*n_jobs"
         )
         with started_deaf_to_interrupts():  # the workers start here
             results = parallel(delayed(_local_worker_run)(spec) for spec in specs)
         yield from results
+
+
+TRACKER_CLEAN_UP_WARNING = "ignore:resource_tracker:UserWarning"
+"""``-W`` option of loky's resource tracker: its reports of what it cleans up."""
+DROPPED_RESULTS_WARNING = r"\d+ tasks have been successfully executed"
+"""joblib's warning about finished tasks it drops when a sweep stops early."""
 
 
 _PDEATHSIG_SET = False
