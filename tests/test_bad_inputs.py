@@ -183,7 +183,7 @@ class Plain(Optimizer):
         return Budget(max_iterations=1)
 
     def minimize(self, objective, bounds, rng, budget=None, x0=None):
-        raise NotImplementedError
+        raise AssertionError("the registry refuses this optimizer before any solve")
 
 
 register("plain-search", Plain(), "a field without setting()")

@@ -539,7 +539,7 @@ class _DeclaredOnly(base.Optimizer):
         return base.Budget(max_iterations=1)
 
     def minimize(self, objective, bounds, rng, budget=None, x0=None):  # pragma: no cover
-        raise NotImplementedError
+        raise AssertionError("only registered and configured here, never asked to solve")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -70,6 +70,12 @@ def execute_run(spec: RunSpec) -> RunResult:
 # --- executors ---------------------------------------------------------------------------------
 
 
+TRACKER_CLEAN_UP_WARNING = "ignore:resource_tracker:UserWarning"
+"""``-W`` option of loky's resource tracker: its reports of what it cleans up."""
+DROPPED_RESULTS_WARNING = r"\d+ tasks have been successfully executed"
+"""joblib's warning about finished tasks it drops when a sweep stops early."""
+
+
 def run_locally(specs: list[RunSpec], jobs: int) -> Generator[RunResult, None, None]:
     """Results in completion order from ``jobs`` loky worker processes (in-process if 1)."""
     if jobs == 1:
@@ -93,12 +99,6 @@ def run_locally(specs: list[RunSpec], jobs: int) -> Generator[RunResult, None, N
         with started_deaf_to_interrupts():  # the workers start here
             results = parallel(delayed(_local_worker_run)(spec) for spec in specs)
         yield from results
-
-
-TRACKER_CLEAN_UP_WARNING = "ignore:resource_tracker:UserWarning"
-"""``-W`` option of loky's resource tracker: its reports of what it cleans up."""
-DROPPED_RESULTS_WARNING = r"\d+ tasks have been successfully executed"
-"""joblib's warning about finished tasks it drops when a sweep stops early."""
 
 
 _PDEATHSIG_SET = False

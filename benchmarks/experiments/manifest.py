@@ -21,10 +21,8 @@ from formation_bench.benchmarks.experiments.errors import (
 from formation_bench.benchmarks.experiments.seal import (
     MANIFEST_DIGEST,
     MANIFEST_SEAL,
-    check_run_keys,
-    decode,
     manifest_digest_matches,
-    read_sealed,
+    read_table,
     sealed_manifest,
 )
 from formation_bench.benchmarks.experiments.store import MANIFEST, RUNS, ResultStore
@@ -212,9 +210,9 @@ def rebuild_manifest(suite: Suite, root: Path | str) -> str:
         rows, damaged = [], 0
         for key in store.keys():
             try:
-                data, _ = read_sealed(store.run_path(key), "run", key)
-                table = decode(data, ["run_key", "suite", "finished_at"])
-                check_run_keys(table, key)
+                table, _ = read_table(
+                    store.run_path(key), "run", key, ["run_key", "suite", "finished_at"]
+                )
             except IntegrityError:
                 damaged += 1
                 continue

@@ -32,12 +32,10 @@ import pyarrow as pa
 from formation_bench.benchmarks.analysis.scoring import TARGETS, evaluations_to_target
 from formation_bench.benchmarks.experiments.errors import IntegrityError, StoreError
 from formation_bench.benchmarks.experiments.seal import (
-    check_run_keys,
-    decode,
-    read_sealed,
+    read_table,
     sealed_parquet,
 )
-from formation_bench.benchmarks.experiments.store import left_out, to_stderr, unverified_notice
+from formation_bench.benchmarks.experiments.store import intact_frames, to_stderr
 from formation_bench.benchmarks.instances.library import Library, shipped
 from formation_bench.benchmarks.outputs import atomic_write_bytes
 from formation_bench.benchmarks.spec import (
@@ -223,9 +221,7 @@ def stored_keys(out: Path) -> set[str]:
 
 def _stored_whole(path: Path) -> bool:
     try:
-        data, seal = read_sealed(path, "score", path.stem)
-        table = decode(data, ["run_key", "score_format"])
-        check_run_keys(table, path.stem)
+        table, seal = read_table(path, "score", path.stem, ["run_key", "score_format"])
     except IntegrityError:  # damaged, or another run's file: redone
         return False
     # a file without a seal (stored before checksums were kept) is redone, and sealed
@@ -272,19 +268,15 @@ def load_scores(out: Path | str, *, notice: Callable[[str], None] = to_stderr) -
     folder = Path(out) / SCORE
     paths = sorted(folder.glob("*.parquet")) if folder.is_dir() else []
     redo = f"'formation-bench score' with the run's options and --out {out}"
-    frames = []
-    unverified = 0
-    for path in paths:
-        try:
-            data, seal = read_sealed(path, "score", path.stem)
-            table = decode(data)
-            check_run_keys(table, path.stem)
-        except IntegrityError as err:
-            left_out(path, str(err), redo)
-            continue
-        unverified += seal is None
-        frames.append(table.to_pandas())
-    unverified_notice(unverified, folder, redo, notice)
+
+    def read(key: str) -> tuple[pd.DataFrame, bool]:
+        table, seal = read_table(folder / f"{key}.parquet", "score", key)
+        return table.to_pandas(), seal is not None
+
+    frames = intact_frames(
+        [(path, path.stem) for path in paths], read,
+        redo=redo, redo_all=redo, folder=folder, notice=notice,
+    )  # fmt: skip
     if not frames:
         raise StoreError(f"{out} holds no score runs (no intact {SCORE}/*.parquet)")
     frame = pd.concat(frames, ignore_index=True)

@@ -125,6 +125,17 @@ def check_run_keys(table: pa.Table, key: str) -> None:
         )
 
 
+def read_table(
+    path: Path, kind: str, key: str, columns: list[str] | None = None
+) -> tuple[pa.Table, dict[str, Any] | None]:
+    """The table of the store file ``path`` and its seal, checked whole: seal, page
+    checksums and every row's run key; raises :class:`IntegrityError`."""
+    data, seal = read_sealed(path, kind, key)
+    table = decode(data, columns)
+    check_run_keys(table, key)
+    return table, seal
+
+
 def _reason(err: BaseException) -> str:
     return " ".join(f"{type(err).__name__}: {err}".split())[:200]
 

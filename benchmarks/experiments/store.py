@@ -72,9 +72,9 @@ import pyarrow as pa
 
 from formation_bench.benchmarks.experiments.errors import IntegrityError, StoreBusy, StoreError
 from formation_bench.benchmarks.experiments.seal import (
-    check_run_keys,
     decode,
     read_sealed,
+    read_table,
     sealed_parquet,
 )
 from formation_bench.benchmarks.outputs import atomic_write_bytes
@@ -109,6 +109,39 @@ def unverified_notice(count: int, folder: Path, redo: str, notice: Callable[[str
             f"note: {count} file(s) in {folder} were stored before checksums were kept and "
             f"are used unverified ({redo} replaces them with sealed ones)"
         )
+
+
+def intact_frames(
+    files: list[tuple[Path, str]],
+    read: Callable[[str], tuple[pd.DataFrame, bool]],
+    *,
+    redo: str,
+    redo_all: str,
+    folder: Path,
+    strict: bool = False,
+    notice: Callable[[str], None] = to_stderr,
+) -> list[pd.DataFrame]:
+    """What ``read`` gives (a frame, and whether its file was sealed) for each ``(path,
+    key)`` whose file passes its checks.
+
+    A file that fails is left out and named on stderr (``redo`` says what redoes it), or
+    raises :class:`IntegrityError` with ``strict``; how many were used unverified goes to
+    ``notice`` in one line (``redo_all`` says what replaces them).
+    """
+    frames = []
+    unverified = 0
+    for path, key in files:
+        try:
+            frame, sealed = read(key)
+        except IntegrityError as err:
+            if strict:
+                raise IntegrityError(f"{path}: {err}") from None
+            left_out(path, str(err), redo)
+            continue
+        unverified += not sealed
+        frames.append(frame)
+    unverified_notice(unverified, folder, redo_all, notice)
+    return frames
 
 
 # --- the store ---------------------------------------------------------------------------------
@@ -203,14 +236,12 @@ class ResultStore:
         if not path.exists():
             return RunStatus("missing")
         try:
-            data, seal = read_sealed(path, "run", key)
-            table = decode(data)
-            if table.num_rows != 1:
-                return RunStatus("corrupt", f"{table.num_rows} rows")
-            check_run_keys(table, key)
-            row = table.to_pylist()[0]
+            table, seal = read_table(path, "run", key)
         except IntegrityError as err:
             return RunStatus("corrupt", str(err))
+        if table.num_rows != 1:
+            return RunStatus("corrupt", f"{table.num_rows} rows")
+        row = table.to_pylist()[0]
         if row.get("record_format") != RECORD_FORMAT:
             return RunStatus("stale", "stored by a version with other result columns")
         if row.get("config_hash") != config_hash:
@@ -254,22 +285,16 @@ def load_results(
     store = ResultStore(root)
     if not store.runs_dir.is_dir():
         raise StoreError(f"{root} holds no results (no {RUNS}/ folder); run a sweep into it first")
-    frames = []
-    unverified = 0
-    for key in store.keys():
-        path = store.run_path(key)
-        try:
-            data, seal = read_sealed(path, "run", key)
-            table = decode(data)
-            check_run_keys(table, key)
-        except IntegrityError as err:
-            if strict:
-                raise IntegrityError(f"{path}: {err}") from None
-            left_out(path, str(err), f"a sweep of its suite into {root}")
-            continue
-        unverified += seal is None
-        frames.append(table.to_pandas())
-    unverified_notice(unverified, store.runs_dir, f"a sweep of their suite into {root}", notice)
+
+    def read(key: str) -> tuple[pd.DataFrame, bool]:
+        table, seal = read_table(store.run_path(key), "run", key)
+        return table.to_pandas(), seal is not None
+
+    frames = intact_frames(
+        [(store.run_path(key), key) for key in store.keys()], read,
+        redo=f"a sweep of its suite into {root}", redo_all=f"a sweep of their suite into {root}",
+        folder=store.runs_dir, strict=strict, notice=notice,
+    )  # fmt: skip
     if not frames:
         raise StoreError(f"{root} holds no finished runs")
     frame = pd.concat(frames, ignore_index=True)
@@ -295,24 +320,20 @@ def load_traces(
     stderr, or raises :class:`IntegrityError` with ``strict``.
     """
     store = ResultStore(root)
-    frames = []
-    unverified = 0
     wanted = (
         keys if keys is not None else sorted(p.stem for p in store.traces_dir.glob("*.parquet"))
     )
-    for key in wanted:
-        path = store.trace_path(key)
-        try:
-            frame, sealed = _verified_trace(store, key)
-        except IntegrityError as err:
-            if strict:
-                raise IntegrityError(f"{path}: {err}") from None
-            left_out(path, str(err), f"a sweep of its suite into {root}")
-            continue
-        unverified += not sealed
+
+    def read(key: str) -> tuple[pd.DataFrame, bool]:
+        frame, sealed = _verified_trace(store, key)
         frame.insert(0, "run_key", key)
-        frames.append(frame)
-    unverified_notice(unverified, store.traces_dir, f"a sweep of their suite into {root}", notice)
+        return frame, sealed
+
+    frames = intact_frames(
+        [(store.trace_path(key), key) for key in wanted], read,
+        redo=f"a sweep of its suite into {root}", redo_all=f"a sweep of their suite into {root}",
+        folder=store.traces_dir, strict=strict, notice=notice,
+    )  # fmt: skip
     if not frames and wanted:
         raise StoreError(f"{root} holds no intact trace of the {len(wanted)} run(s) asked for")
     if not frames:
