@@ -28,6 +28,7 @@ from formation_bench.benchmarks.experiments.suite import (
     shipped_suites,
 )
 from formation_bench.benchmarks.experiments.sweep import DEFAULT_JOBS, plan, run_sweep
+from formation_bench.benchmarks.instances.library import LIBRARY_VERSIONS, SHIPPED_VERSION
 from formation_bench.benchmarks.interrupts import is_interrupt
 from formation_bench.benchmarks.staging import (
     OutputError,
@@ -156,7 +157,13 @@ def _score_budget(text: str) -> tuple[int | None, int | None]:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
-    from formation_bench.benchmarks.experiments.score import run_scores, score_runs, stored_keys
+    from formation_bench.benchmarks.experiments.score import (
+        ScoreError,
+        run_scores,
+        score_runs,
+        stored_keys,
+    )
+    from formation_bench.benchmarks.instances.library import LibraryError, load_shipped, shipped
     from formation_bench.plugins import loaded_plugins
 
     out = Path(args.out)
@@ -165,14 +172,22 @@ def cmd_score(args: argparse.Namespace) -> int:
     except OutputError as err:
         raise SweepError(str(err)) from None
     _, overrides = configured_optimizer(args.optimizer, args.set or [])
-    runs = score_runs(
-        args.optimizer,
-        overrides,
-        list(dict.fromkeys(args.budgets)),
-        list(dict.fromkeys(args.seeds)),
-        deadline_ms=args.deadline_ms,
-        plugins=loaded_plugins(),
-    )
+    try:
+        library = shipped() if args.library is None else load_shipped(args.library)
+        runs = score_runs(
+            args.optimizer,
+            overrides,
+            list(dict.fromkeys(args.budgets)),
+            list(dict.fromkeys(args.seeds)),
+            deadline_ms=args.deadline_ms,
+            library=library,
+            split=args.split,
+            plugins=loaded_plugins(),
+        )
+    except LibraryError as err:
+        raise SweepError(f"--library: {err}") from None
+    except ScoreError as err:
+        raise SweepError(str(err)) from None
     optimizer = runs[0].optimizer()
     for run in {run.budget_label: run for run in runs}.values():  # each budget once
         check_optimizer(optimizer, run.budget(optimizer))  # the limits run and sweep apply
@@ -195,8 +210,9 @@ def cmd_score(args: argparse.Namespace) -> int:
         ) from None
     print(
         f"{len(runs)} score runs ({done} new) of {runs[0].optimizer_label} on library "
-        f"{runs[0].library_version} in {out}/score ({time.perf_counter() - start:.1f} s); "
-        f"formation-bench report {out} writes the statistics"
+        f"{runs[0].library_version}, split {runs[0].split}, in {out}/score "
+        f"({time.perf_counter() - start:.1f} s); formation-bench report {out} writes the "
+        "statistics"
     )
     return 0
 
@@ -234,7 +250,10 @@ def cmd_report(args: argparse.Namespace) -> int:
                 from formation_bench.benchmarks.experiments.score import load_scores
 
                 print(write_score_report(load_scores(results), staging, figures=args.figures))
-                written.append("score.md, score_summary.csv, score_ert.csv, score_profile.csv")
+                written.append(
+                    "score.md, score_summary.csv, score_degenerate.csv, score_phases.csv, "
+                    "score_paired.csv, score_ert.csv, score_profile.csv"
+                )
     except (ReportError, OutputError) as err:
         print(f"formation-bench report: error: {err}", file=sys.stderr)
         return 2
@@ -268,10 +287,13 @@ def cmd_export_ioh(args: argparse.Namespace) -> int:
         raise ExportError(str(err)) from None
     if args.zip:
         _zip_folder(folder, archive)
+    left_out = int(scores["degenerate"].astype(bool).sum())
     print(
         f"wrote {folder}{' and ' + str(archive) if args.zip else ''}: {len(written)} "
-        f"algorithms, {sum(written.values())} runs; IOHanalyzer reads the folder "
-        "(DataSetList) or the zip (upload)"
+        f"algorithms, {sum(written.values())} runs"
+        + (f" ({left_out} solves of degenerate instances left out)" if left_out else "")
+        + "; raw_y is the normalised gap (f - J*) / (f_warm - J*); IOHanalyzer reads the "
+        "folder (DataSetList) or the zip (upload)"
     )
     for line in notices:
         print(line, file=sys.stderr)
@@ -350,9 +372,10 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
     score = sub.add_parser(
         "score",
         help="solve every instance of the library with one optimiser (resumable) into DIR",
-        description="Run an optimiser on the instance library (recorded local problems with "
-        "best-known optima J*) at each budget and seed; 'report DIR' gives gaps, success "
-        "rates, ERT, ECDFs and performance profiles.",
+        description="Run an optimiser on one split of the instance library (recorded local "
+        "problems with best-known optima J*) at each budget and seed; 'report DIR' gives the "
+        "leaderboard (median normalised gap (f - J*) / (f_warm - J*), relative gap, success "
+        "rates, ERT, ECDFs, performance profiles, per-phase and paired tables).",
     )
     score.add_argument("--optimizer", required=True, help="registered optimizer name")
     score.add_argument(
@@ -369,6 +392,17 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
     score.add_argument("--seeds", nargs="+", type=_seed, default=[0], help="seeds (default 0)")
     score.add_argument(
         "--deadline-ms", type=_deadline, metavar="MS", help="per-solve wall-clock deadline"
+    )
+    score.add_argument(
+        "--library",
+        choices=LIBRARY_VERSIONS,
+        help=f"library version (default: the shipped one, {SHIPPED_VERSION})",
+    )
+    score.add_argument(
+        "--split",
+        choices=("test", "validation", "all"),
+        help="instances solved, degenerate ones included: a split of the library or all of "
+        "it (default: test; all on v1, which has no splits and allows only all)",
     )
     score.add_argument("--out", required=True, help="results folder (resumed if it exists)")
     score.add_argument(
@@ -416,7 +450,8 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         help="score runs of a results folder in the IOHprofiler format (for IOHanalyzer)",
         description="Write every score run of DIR as IOHprofiler data: one algorithm per "
         "optimiser and budget, the library as one function whose instances are its problems, "
-        "one run per instance and seed, raw_y the relative gap to J*.",
+        "one run per non-degenerate instance and seed, raw_y the normalised gap "
+        "(f - J*) / (f_warm - J*).",
     )
     export.add_argument("results", metavar="DIR", help="results folder written by 'score'")
     export.add_argument("--out", help="export folder (default: DIR/ioh)")

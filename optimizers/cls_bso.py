@@ -60,6 +60,7 @@ from formation_bench.optimizers.compiled import (
 from formation_bench.optimizers.original_bso_kernels import ShiConfig, ShiSettings, shi_step
 from formation_bench.optimizers.population import (
     RandomAhead,
+    WarmStartInit,
     compiled_initial_population,
     evaluate_prefix,
     greedy_select,
@@ -312,15 +313,20 @@ def cls_block(
     return x, f, candidates, costs, done, replacements, improvements
 
 
+# WarmStartInit leads the bases because dataclass fields follow the reversed MRO: its settings
+# then come after the method's own, whose positions and listing order stay as they were
 @dataclass(frozen=True)
-class ChaoticLocalSearchBSO(LocalSearchConfig, ShiConfig, PopulationOptimizer[LocalSearchState]):
+class ChaoticLocalSearchBSO(
+    WarmStartInit, LocalSearchConfig, ShiConfig, PopulationOptimizer[LocalSearchState]
+):
     """Shi's BSO step plus a chaotic local search around the best idea each iteration.
 
     Composed of Shi's settings and step
     (:class:`~formation_bench.optimizers.original_bso_kernels.ShiConfig`,
     :func:`~formation_bench.optimizers.original_bso_kernels.shi_step`) and the local search's
     (:class:`LocalSearchConfig`, :func:`local_candidates`); the fields are Shi's, then the
-    local search's.
+    local search's, then the initial population's
+    (:class:`~formation_bench.optimizers.population.WarmStartInit`).
     """
 
     population_size: int = setting(
@@ -351,7 +357,7 @@ class ChaoticLocalSearchBSO(LocalSearchConfig, ShiConfig, PopulationOptimizer[Lo
         x0: np.ndarray | None,
         max_iterations: int,
     ) -> LocalSearchState:
-        x, f = initial_population(counter, bounds, rng, self.population_size, x0)
+        x, f = initial_population(counter, bounds, rng, self.population_size, x0, self)
         n, d = x.shape
         return LocalSearchState(
             x=x,
@@ -404,7 +410,7 @@ class ChaoticLocalSearchBSO(LocalSearchConfig, ShiConfig, PopulationOptimizer[Lo
     ) -> OptimizeResult:
         t_max = self.planned_iterations(budget)
         x, f, start = compiled_initial_population(
-            objective, bounds, rng, self.population_size, x0, budget.max_evaluations
+            objective, bounds, rng, self.population_size, x0, budget.max_evaluations, self
         )
         n, d = x.shape
         shi_packed = self.shi_settings(bounds, t_max)

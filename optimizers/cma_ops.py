@@ -2,10 +2,18 @@
 
 The formulas are those of Hansen's tutorial (N. Hansen, *The CMA Evolution
 Strategy: A Tutorial*, arXiv:1604.00772, Table 1 and Fig. 6) with its
-default parameters (:func:`cma_parameters`). The search runs in coordinates
-normalised by the box, ``u = (x - lower) / (upper - lower)`` in ``[0, 1]^n``,
-so that one scalar step size fits coordinates of very different ranges (the
-paper problem mixes accelerations in +-7 with turn rates in +-0.25).
+default parameters or pycma's (:func:`cma_parameters`, :class:`CMAConstants`).
+The search runs in coordinates normalised by the box, ``u = (x - lower) /
+(upper - lower)`` in ``[0, 1]^n``, so that one scalar step size fits
+coordinates of very different ranges (the paper problem mixes accelerations
+in +-7 with turn rates in +-0.25).
+
+**Bounds.** Samples are brought into the box by a repair (clip, reflect,
+resample) or by pycma's BoundTransform (:func:`linquad_value`, reimplemented
+after ``cma.transformations.BoxConstraintsLinQuadTransformation`` of pycma 4,
+with its default margins), applied in the normalised box as the ``pycma``
+adapter has pycma do: the distribution lives in the unbounded space of the
+samples, the update learns from them, and only their images are evaluated.
 
 Like the other ``*_ops`` modules, every random number comes in as an array
 and inputs are never modified; one call of :func:`cma_generation` does a
@@ -45,12 +53,13 @@ from __future__ import annotations
 
 import functools
 import math
+from enum import IntEnum
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from formation_bench.optimizers.bound_handling import apply_bounds_inplace
+from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.compiled import NFEV, evaluate_prefix, remaining
 
 # --- the core: scalars first, then the arrays laid out by layout() ------------------------------
@@ -83,7 +92,33 @@ LIMIT = 20
 """Evaluations the run may learn from before it stops (RunBudget; inf: no limit)."""
 LAMARCKIAN = 21
 """1: learn from the repaired points' steps; 0: from the sampled steps."""
-N_SCALARS = 22
+H_SIGMA_TEST = 22
+"""A :class:`CMAConstants` value: which test stalls the rank-one path after a long step."""
+N_SCALARS = 23
+
+
+class CMABoundHandling(IntEnum):
+    """How CMA-ES brings its samples into the box: a repair, or pycma's BoundTransform."""
+
+    CLIP = int(BoundHandling.CLIP)
+    """Project the sample onto the nearest face."""
+    REFLECT = int(BoundHandling.REFLECT)
+    """Mirror the sample at the faces (a periodic fold, continuous across them)."""
+    RESAMPLE = int(BoundHandling.RESAMPLE)
+    """Replace each violating coordinate by a uniform value in its range."""
+    TRANSFORM = 3
+    """pycma's BoundTransform: map every sample by :func:`linquad_transform`, the identity
+    inside the box but for a margin along each face, where it bends quadratically onto it."""
+
+
+class CMAConstants(IntEnum):
+    """Whose strategy constants a run uses; they differ in c_sigma, d_sigma and h_sigma."""
+
+    TUTORIAL = 0
+    """Hansen's tutorial, Table 1, and its h_sigma test on ``||p_sigma||``."""
+    PYCMA = 1
+    """pycma 4's: its c_sigma, d_sigma, c_1, c_mu, and its h_sigma test on ``||p_sigma||^2``."""
+
 
 # Why a run stops (and, in a solve with budget left, restarts).
 RUNNING = 0
@@ -146,10 +181,18 @@ def default_population_size(dim: int) -> int:
     return 4 + math.floor(3.0 * math.log(dim))
 
 
-def cma_parameters(dim: int, population_size: int, active: bool = True) -> CMAParameters:
-    """The tutorial's default strategy parameters for dimension ``dim`` and lambda.
+def cma_parameters(
+    dim: int,
+    population_size: int,
+    active: bool = True,
+    constants: CMAConstants = CMAConstants.TUTORIAL,
+) -> CMAParameters:
+    """The default strategy parameters for dimension ``dim`` and lambda, by ``constants``.
 
-    ``c_mu`` has the 1/4 offset of the tutorial's current version (as pycma).
+    TUTORIAL: the tutorial's Table 1; ``c_mu`` has the 1/4 offset of its
+    current version (as pycma). PYCMA: as pycma 4 computes them (see
+    :func:`pycma_step_size_constants`; its ``c_1`` is also scaled by
+    ``min(1, lambda / 6)``); ``c_c`` and the weights' formulas are the same.
     With ``active`` the worst ``lambda - mu`` steps get the tutorial's negative
     weights (scaled by ``min(alpha_mu-, alpha_mueff-, alpha_posdef-)``); without
     it they get zero, the classic rank-mu update.
@@ -160,10 +203,15 @@ def cma_parameters(dim: int, population_size: int, active: bool = True) -> CMAPa
     positive, negative = prime[:mu], prime[mu:]
     mueff = positive.sum() ** 2 / (positive**2).sum()
     alpha_cov = 2.0
-    c_sigma = (mueff + 2.0) / (n + mueff + 5.0)
-    d_sigma = 1.0 + 2.0 * max(0.0, math.sqrt((mueff - 1.0) / (n + 1.0)) - 1.0) + c_sigma
+    if constants == CMAConstants.PYCMA:
+        c_sigma, d_sigma = pycma_step_size_constants(dim, float(mueff))
+        # pycma's sampler damps c_1 for populations smaller than 6 (lambda_lower = 6)
+        c_1 = min(1.0, lam / 6.0) * alpha_cov / ((n + 1.3) ** 2 + mueff)
+    else:
+        c_sigma = (mueff + 2.0) / (n + mueff + 5.0)
+        d_sigma = 1.0 + 2.0 * max(0.0, math.sqrt((mueff - 1.0) / (n + 1.0)) - 1.0) + c_sigma
+        c_1 = alpha_cov / ((n + 1.3) ** 2 + mueff)
     c_c = (4.0 + mueff / n) / (n + 4.0 + 2.0 * mueff / n)
-    c_1 = alpha_cov / ((n + 1.3) ** 2 + mueff)
     c_mu = min(
         1.0 - c_1,
         alpha_cov * (0.25 + mueff + 1.0 / mueff - 2.0) / ((n + 2.0) ** 2 + alpha_cov * mueff / 2.0),
@@ -185,6 +233,23 @@ def cma_parameters(dim: int, population_size: int, active: bool = True) -> CMAPa
     return CMAParameters(
         weights, mu, float(mueff), c_sigma, d_sigma, c_c, c_1, c_mu, chi_n, eigen_gap, history
     )
+
+
+def pycma_step_size_constants(dim: int, mueff: float) -> tuple[float, float]:
+    """``(c_sigma, d_sigma)`` of pycma 4's cumulative step-size adaptation (CMAAdaptSigmaCSA).
+
+    ``c_sigma = min(1/2, (mueff + 2) / (n + mueff + 3))``, 2 less in the
+    denominator than the tutorial's. ``d_sigma = 1 + 2 max(0, a sqrt((mueff - 1)
+    / (n + 1)) - 1) + c_sigma`` with ``a = max(1, 3 (1 - 2^(-n/9)))`` where the
+    tutorial has ``a = 1``: the damping for a large mueff, attenuated in small
+    dimensions. pycma adds a term for mirrored sampling, which it uses below
+    lambda = 6 by default; there is none here (as with pycma's ``CMA_mirrors=0``).
+    """
+    n = float(dim)
+    c_sigma = min(0.5, (mueff + 2.0) / (n + mueff + 3.0))
+    inner = max(1.0, 3.0 * (1.0 - 0.5 ** (n / 9.0)))
+    d_sigma = 1.0 + 2.0 * max(0.0, inner * math.sqrt((mueff - 1.0) / (n + 1.0)) - 1.0) + c_sigma
+    return c_sigma, d_sigma
 
 
 def injection_cap(dim: int) -> float:
@@ -272,13 +337,16 @@ def run_template(
     tol_x: float,
     bound_mode: int,
     lamarckian: bool = False,
+    constants: int = CMAConstants.TUTORIAL,
 ) -> np.ndarray:
     """The parts of a new run's state that depend on its settings only (read-only, cached).
 
     Building them takes some 50 µs, a solve at the default budget about 2 ms:
     every solve of a closed loop starts a run with the same settings.
+    ``bound_mode`` is a :class:`CMABoundHandling` and ``constants`` a
+    :class:`CMAConstants` value.
     """
-    params = cma_parameters(dim, lam, active)
+    params = cma_parameters(dim, lam, active, CMAConstants(constants))
     n = dim
     where = where_in_core(n, lam, params.history)
     state = np.zeros((lam + -(-where.end // n), n))
@@ -288,6 +356,7 @@ def run_template(
         C_C: params.c_c, C_1: params.c_1, C_MU: params.c_mu, CHI_N: params.chi_n,
         EIGEN_GAP: params.eigen_gap, TOL_FUN: tol_fun, TOL_X: tol_x, BOUND_MODE: bound_mode,
         CAP: injection_cap(n), HISTORY: params.history, LAMARCKIAN: float(lamarckian),
+        H_SIGMA_TEST: float(constants),
     }  # fmt: skip
     for index, value in scalars.items():
         core[index] = value
@@ -544,7 +613,10 @@ def update_distribution(
 
     Written into ``core``. ``<y>_w`` comes from the mu best steps; cumulative
     step-size adaptation with ``C^(-1/2)`` of the last eigendecomposition;
-    ``h_sigma`` stalls the rank-one path after a long step; the rank-one and
+    ``h_sigma`` stalls the rank-one path after a long step (the tutorial's
+    test ``||p_sigma|| / sqrt(1 - (1 - c_sigma)^(2(g+1))) < (1.4 + 2 / (n +
+    1)) E||N(0, I)||`` or pycma's ``||p_sigma||^2 / (1 - (1 - c_sigma)^(2(g+1)))
+    / n - 1 < 1 + 4 / (n + 1)``, by the core's H_SIGMA_TEST); the rank-one and
     rank-mu updates of C, a negative weight scaled by ``n / ||C^(-1/2) y||^2``.
     """
     order = scratch.order
@@ -580,8 +652,14 @@ def update_distribution(
         ps[i] = (1.0 - c_sigma) * ps[i] + ps_factor * s
         ps_norm2 += ps[i] * ps[i]
     ps_norm = math.sqrt(ps_norm2)
-    correction = math.sqrt(1.0 - (1.0 - c_sigma) ** (2.0 * (core[GENERATION] + 1.0)))
-    h_sigma = 1.0 if ps_norm / correction < (1.4 + 2.0 / (n + 1.0)) * chi_n else 0.0
+    # p_sigma starts at zero, so its expected length grows to the stationary one only
+    # after some generations: both tests divide the bias out
+    bias = 1.0 - (1.0 - c_sigma) ** (2.0 * (core[GENERATION] + 1.0))
+    if int(core[H_SIGMA_TEST]) == CMAConstants.TUTORIAL:
+        short = ps_norm / math.sqrt(bias) < (1.4 + 2.0 / (n + 1.0)) * chi_n
+    else:  # pycma compares the squared length, E||N(0, I)||^2 = n
+        short = ps_norm2 / bias / n - 1.0 < 1.0 + 4.0 / (n + 1.0)
+    h_sigma = 1.0 if short else 0.0
     pc_factor = h_sigma * math.sqrt(c_c * (2.0 - c_c) * mueff)
     for i in range(n):
         pc[i] = (1.0 - c_c) * pc[i] + pc_factor * y_w[i]
@@ -756,16 +834,18 @@ def sample(
 ) -> None:
     """lambda samples ``m + sigma B (D * z)`` into ``points`` (box coordinates) and their steps.
 
-    ``z`` are the rows of ``normals``. A sample outside [0, 1]^n is repaired
-    by the core's bound mode (a
-    :class:`~formation_bench.optimizers.bound_handling.BoundHandling` value;
-    ``uniforms``, shaped like ``normals``, are read only by RESAMPLE), and the
-    repaired point is the one evaluated. The step the next update learns from
-    is the sampled one (the search minimises ``f(repair(x))``, as pycma's
-    BoundTransform does), or, with the core's LAMARCKIAN flag, the repaired
-    point's ``(u_repaired - m) / sigma``, shortened to the Mahalanobis length
-    :func:`injection_cap` if longer. Points are mapped to the box as
-    ``lower + width u`` and clipped, so that rounding cannot leave it.
+    ``z`` are the rows of ``normals``. The core's bound mode (a
+    :class:`CMABoundHandling` value) brings the samples into [0, 1]^n: a
+    repair of those outside (``uniforms``, shaped like ``normals``, are read
+    only by RESAMPLE), or pycma's BoundTransform of all of them
+    (:func:`linquad_value`, the identity but for the margin along each face);
+    the repaired or mapped point is the one evaluated. The step the next
+    update learns from is the sampled one (the search minimises
+    ``f(repair(x))``, as pycma does with its BoundTransform), or, with the
+    core's LAMARCKIAN flag, the evaluated point's ``(u_repaired - m) /
+    sigma``, shortened to the Mahalanobis length :func:`injection_cap` if
+    longer. Points are mapped to the box as ``lower + width u`` and clipped,
+    so that rounding cannot leave it.
     """
     mean = core[where.mean : where.mean + n]
     axes = core[where.axes : where.axes + n]
@@ -796,9 +876,13 @@ def sample(
                 y[i] += rows[k, i] * a
         for i in range(n):
             points[s, i] = mean[i] + sigma * y[i]
-    # repaired in place in the point rows, still in [0, 1] coordinates
+    # repaired or mapped in place in the point rows, still in [0, 1] coordinates
     unit = scratch.unit
-    apply_bounds_inplace(points, unit[0], unit[1], int(core[BOUND_MODE]), uniforms)
+    mode = int(core[BOUND_MODE])
+    if mode == CMABoundHandling.TRANSFORM:
+        linquad_transform_inplace(points, unit[0], unit[1])
+    else:
+        apply_bounds_inplace(points, unit[0], unit[1], mode, uniforms)
     if lamarckian:
         for s in range(lam):
             y = steps[s]
@@ -816,6 +900,92 @@ def sample(
     for s in range(lam):
         for i in range(n):
             points[s, i] = min(max(lower[i] + width[i] * points[s, i], lower[i]), upper[i])
+
+
+# --- pycma's BoundTransform ---------------------------------------------------------------------
+
+
+@njit(cache=True)
+def linquad_margins(lower: float, upper: float) -> tuple[float, float]:
+    """pycma's default margins ``(a_l, a_u)`` of the box ``[lower, upper]`` of one coordinate.
+
+    ``min((upper - lower) / 2, max(1, |bound|) / 20)`` for each bound
+    (``cma.transformations.margin_width2``, pycma's ``linquad_margin_width``):
+    0.05 on each side of the unit interval.
+    """
+    half = (upper - lower) / 2.0
+    return min(half, max(1.0, abs(lower)) / 20.0), min(half, max(1.0, abs(upper)) / 20.0)
+
+
+@njit(cache=True)
+def linquad_value(v: float, lower: float, upper: float) -> float:
+    """pycma's BoundTransform of one coordinate ``v`` into ``[lower, upper]``.
+
+    The transform of ``cma.transformations.BoxConstraintsLinQuadTransformation``:
+    periodic with period ``2 (upper - lower + a_l + a_u)`` and symmetric about
+    ``lower - a_l`` and ``upper + a_u``; within ``[lower - a_l, upper + a_u]``
+    the identity on ``[lower + a_l, upper - a_u]`` and the parabola through
+    ``(lower - a_l, lower)`` (``(upper + a_u, upper)``) with slope 0 there and 1
+    where it meets the identity. So it is continuously differentiable, and a
+    coordinate beyond a face is folded back as by a mirror that stops at the
+    face. A value far outside is first shifted by whole periods, by the same
+    floor division as pycma's, then mirrored into the interval.
+    """
+    al, au = linquad_margins(lower, upper)
+    width = upper - lower
+    start = lower - 2.0 * al - width / 2.0
+    if v < start or v > upper + 2.0 * au + width / 2.0:
+        period = 2.0 * (width + al + au)
+        v -= period * ((v - start) // period)
+    if v > upper + au:
+        v -= 2.0 * (v - upper - au)
+    if v < lower - al:
+        v += 2.0 * (lower - al - v)
+    if v < lower + al:
+        d = v - (lower - al)
+        return lower + d * d / 4.0 / al
+    if v > upper - au:
+        d = v - (upper + au)
+        return upper - d * d / 4.0 / au
+    return v
+
+
+@njit(cache=True)
+def linquad_transform_inplace(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
+    """:func:`linquad_value` of every entry of the rows of ``x`` (m x n), written into ``x``."""
+    m, n = x.shape
+    for s in range(m):
+        for i in range(n):
+            x[s, i] = linquad_value(x[s, i], lower[i], upper[i])
+
+
+@njit(cache=True)
+def linquad_transform(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """A copy of the points ``x`` (m x n) mapped into the box by :func:`linquad_value`."""
+    out = x.copy()
+    linquad_transform_inplace(out, lower, upper)
+    return out
+
+
+@njit(cache=True)
+def linquad_inverse(y: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """The point of ``[lower - a_l, upper + a_u]`` that :func:`linquad_value` maps to ``y``.
+
+    pycma's ``BoundTransform.inverse``, with which it turns its ``x0`` into the
+    first mean; ``y`` is clipped into the box first (pycma raises instead).
+    """
+    out = np.empty_like(y)
+    for i in range(y.shape[0]):
+        lo, hi = lower[i], upper[i]
+        al, au = linquad_margins(lo, hi)
+        v = min(max(y[i], lo), hi)
+        if v < lo + al:
+            out[i] = (lo - al) + 2.0 * math.sqrt(al * (v - lo))
+        elif v < hi - au:
+            out[i] = v
+        else:
+            out[i] = (hi + au) - 2.0 * math.sqrt(au * (hi - v))
+    return out
 
 
 def symmetric_eigen(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

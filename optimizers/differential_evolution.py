@@ -19,20 +19,33 @@ Per generation, for every member ``x_i`` of the N-member population:
   ``differential_evolution``, which keeps the population spread where
   clipping would pile members onto the faces). ``clip`` and ``reflect`` are
   the project's other options. Only mutant coordinates can leave the box;
-* **selection**: the N trials are evaluated in one batch, and trial ``i``
-  replaces ``x_i`` when its cost is *no higher* (Storn & Price's rule; ties
-  let the population cross plateaus).
+* **selection**: trial ``i`` replaces ``x_i`` when its cost is *no higher*
+  (Storn & Price's rule; ties let the population cross plateaus). With
+  ``updating=deferred`` (the default, Storn & Price's scheme) the N trials are
+  made from the population at the start of the generation, evaluated in one
+  batch, then selected. With ``updating=immediate`` (scipy's default,
+  ``de-immediate``) trial ``i`` is made from the population as trials
+  ``0 .. i-1`` left it, evaluated alone and selected at once, and the best
+  member (current-to-best/1's ``x_best``) is updated as soon as a trial beats
+  it: later trials of a generation already use the improvements of earlier
+  ones.
 
 The defaults F = 0.5, CR = 0.9 are Storn & Price's suggested start; N = 30
 and 40 generations give the ~1230 evaluations of the other population
 optimisers' default budget (Storn & Price suggest N = 5-10 D, which at the
 paper problem's D = 10 would leave 12-25 generations). The warm start ``x0``
-is member 0 of the initial population.
+is member 0 of the initial population; with ``warm_start_share`` > 0 (see
+:class:`~formation_bench.optimizers.population.WarmStartInit`, ``de-immediate-warm``)
+that share of the other members is drawn around it.
 
-Each generation is one compiled call (:func:`~formation_bench.optimizers.de_ops.de_generation`)
-besides the objective call, with the selection of a generation's trials
-deferred into the next call, and the random numbers drawn ahead
-(:func:`~formation_bench.optimizers.population.iteration_randoms`).
+A deferred generation is one compiled call
+(:func:`~formation_bench.optimizers.de_ops.de_generation`) besides the
+objective call, with the selection of a generation's trials deferred into the
+next call, and the random numbers drawn ahead
+(:func:`~formation_bench.optimizers.population.iteration_randoms`). An
+immediate generation of a compiled solve is one compiled call too, objective
+calls included (:func:`~formation_bench.optimizers.de_ops.immediate_generation`).
+Both updating modes read the same random numbers per generation.
 """
 
 from __future__ import annotations
@@ -53,12 +66,17 @@ from formation_bench.optimizers.compiled import CompiledObjective
 from formation_bench.optimizers.de_ops import (
     DEConfig,
     DEStrategy,
+    DEUpdating,
+    best_member,
     de_block,
     de_generation,
+    immediate_trial,
+    select_trial_inplace,
     select_trials,
 )
 from formation_bench.optimizers.population import (
     RandomAhead,
+    WarmStartInit,
     compiled_initial_population,
     initial_population,
     iteration_randoms,
@@ -71,9 +89,10 @@ from formation_bench.optimizers.registry import register
 class DEState(NamedTuple):
     """Population, the last generation's trials, and bookkeeping (arrays never modified in place).
 
-    The selection of a generation's trials is applied at the start of the
-    next generation, in the same compiled call that makes the next trials;
-    :meth:`population` applies the pending selection.
+    With deferred updating the selection of a generation's trials is applied
+    at the start of the next generation, in the same compiled call that makes
+    the next trials; :meth:`population` applies the pending selection. With
+    immediate updating nothing is pending: ``trials`` has no rows.
     """
 
     x: np.ndarray
@@ -96,10 +115,13 @@ class DEState(NamedTuple):
         return select_trials(self.x, self.f, self.trials, self.trial_costs)
 
 
+# WarmStartInit before DEConfig: a dataclass lists the fields of its bases from the last in
+# the MRO, so the DE settings come first and the initialisation's after them
 @dataclass(frozen=True)
-class DifferentialEvolution(DEConfig, PopulationOptimizer[DEState]):
+class DifferentialEvolution(WarmStartInit, DEConfig, PopulationOptimizer[DEState]):
     """Storn & Price's DE; the settings are those of
-    :class:`~formation_bench.optimizers.de_ops.DEConfig`."""
+    :class:`~formation_bench.optimizers.de_ops.DEConfig` and the initial population's of
+    :class:`~formation_bench.optimizers.population.WarmStartInit`."""
 
     @property
     def default_budget(self) -> Budget:
@@ -116,8 +138,9 @@ class DifferentialEvolution(DEConfig, PopulationOptimizer[DEState]):
         x0: np.ndarray | None,
         max_iterations: int,
     ) -> DEState:
-        """N uniform members (member 0 = ``x0`` if given), evaluated in one batch within budget."""
-        x, f = initial_population(counter, bounds, rng, self.population_size, x0)
+        """N members (member 0 = ``x0`` if given, a share around it by the warm-start settings),
+        evaluated in one batch within budget."""
+        x, f = initial_population(counter, bounds, rng, self.population_size, x0, init=self)
         n, d = x.shape
         return DEState(
             x=x,
@@ -137,7 +160,21 @@ class DifferentialEvolution(DEConfig, PopulationOptimizer[DEState]):
         rng: np.random.Generator,
         iteration: int,
     ) -> DEState:
+        """One generation.
+
+        With immediate updating each trial must be evaluated before the next one
+        is made, so this Python path calls ``counter`` once per trial (N calls of
+        one row instead of one call of N); the compiled path
+        (:meth:`minimize_compiled`) makes those calls inside its kernel.
+        """
         randoms, u, _ = iteration_randoms(state.randoms, rng, iteration, state.t_max)
+        if self.updating is DEUpdating.IMMEDIATE:
+            x, f = state.population()  # new arrays, which the loop below updates in place
+            best = best_member(f)
+            for i in range(min(x.shape[0], counter.remaining)):
+                trial = immediate_trial(x, i, best, u, state.settings)
+                best = select_trial_inplace(x, f, i, best, trial, counter(trial)[0])
+            return state._replace(x=x, f=f, randoms=randoms)
         x, f, trials = de_generation(
             state.x, state.f, state.trials, state.trial_costs, u, state.settings
         )
@@ -161,7 +198,7 @@ class DifferentialEvolution(DEConfig, PopulationOptimizer[DEState]):
     ) -> OptimizeResult:
         t_max = self.planned_iterations(budget)
         x, f, start = compiled_initial_population(
-            objective, bounds, rng, self.population_size, x0, budget.max_evaluations
+            objective, bounds, rng, self.population_size, x0, budget.max_evaluations, init=self
         )
         n, d = x.shape
         settings = self.de_settings(bounds)
@@ -193,4 +230,26 @@ register(
     "de-current-to-best",
     DifferentialEvolution(strategy=DEStrategy.CURRENT_TO_BEST_1_BIN),
     "Differential evolution DE/current-to-best/1/bin, N = 30, F = 0.5, CR = 0.9",
+)
+register(
+    "de-immediate",
+    DifferentialEvolution(updating=DEUpdating.IMMEDIATE),
+    "Differential evolution DE/rand/1/bin, N = 30, F = 0.5, CR = 0.9, immediate updating "
+    "(each trial selected before the next is made: scipy's default)",
+)
+WARM_START_SHARE = 0.9
+"""``warm_start_share`` of ``de-immediate-warm``: chosen with the spread on the instance
+library's validation split (docs/optimizers.md, "Initial population around the warm start")."""
+WARM_START_SPREAD = 0.02
+"""``warm_start_spread`` of ``de-immediate-warm``, chosen with the share."""
+
+register(
+    "de-immediate-warm",
+    DifferentialEvolution(
+        updating=DEUpdating.IMMEDIATE,
+        warm_start_share=WARM_START_SHARE,
+        warm_start_spread=WARM_START_SPREAD,
+    ),
+    f"de-immediate with {WARM_START_SHARE:.0%} of the initial population drawn around the warm "
+    f"start (std {WARM_START_SPREAD:g} x range), the rest uniform",
 )

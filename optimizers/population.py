@@ -1,21 +1,25 @@
 """Helpers shared by the population optimisers: the initial population and budget-truncated batches.
 
 Every population method starts the same way (``N`` uniform points, the warm
-start in row 0, one batch evaluation within the budget), and every one of
-them evaluates a batch of new points that the budget may cut short.
+start in row 0, optionally a share of the members drawn around the warm start
+(:class:`WarmStartInit`), one batch evaluation within the budget), and every
+one of them evaluates a batch of new points that the budget may cut short.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from time import perf_counter
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
+from formation_bench.fields import setting
 from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, OptimizeResult
+from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.compiled import (
     HAS_BEST,
     NFEV,
@@ -27,21 +31,87 @@ from formation_bench.optimizers.compiled import (
 from formation_bench.optimizers.compiled import evaluate_prefix as compiled_evaluate_prefix
 
 
+@dataclass(frozen=True)
+class WarmStartInit:
+    """How much of the initial population starts around the warm start.
+
+    In a receding horizon the warm start (the shifted previous plan) is nearly
+    right, and a population drawn uniformly in the box spends its first
+    generations far from it. With ``warm_start_share`` > 0, that share of the
+    members after row 0 is drawn from a Gaussian cloud around the warm start
+    (standard deviation ``warm_start_spread`` of each coordinate's range),
+    mirrored back into the box at its faces; the rest stay uniform, so the
+    search can still leave a wrong start. Without a warm start, or at share 0
+    (the published methods), the population is uniform with the warm start as
+    row 0, drawing exactly the random numbers it drew before.
+    """
+
+    warm_start_share: float = setting(
+        0.0,
+        low=0.0,
+        high=1.0,
+        doc="Share of the initial population drawn around the warm start (rows after "
+        "row 0, which is the warm start itself); 0: uniform in the box (the published methods)",
+    )
+    warm_start_spread: float = setting(
+        0.05,
+        low=0.0,
+        low_open=True,
+        high=1.0,
+        doc="Standard deviation of the cloud around the warm start, per coordinate, "
+        "as a share of the coordinate's range",
+    )
+
+    def warm_members(self, size: int) -> int:
+        """How many rows after row 0 are drawn around the warm start, of ``size`` members."""
+        return min(size - 1, round(self.warm_start_share * size)) if size > 1 else 0
+
+
+UNIFORM_START = WarmStartInit()
+"""The published initialisation: uniform in the box, the warm start as row 0."""
+
+
+def starting_points(
+    bounds: Bounds,
+    rng: np.random.Generator,
+    size: int,
+    x0: np.ndarray | None,
+    init: WarmStartInit = UNIFORM_START,
+) -> np.ndarray:
+    """The ``size`` initial members (see :class:`WarmStartInit`), not yet evaluated.
+
+    The uniform points are drawn first, so at share 0 the numbers drawn are
+    those of the uniform start; the cloud's normals are drawn after them.
+    """
+    points = bounds.sample(rng, size)
+    if x0 is None:
+        return points
+    points[0] = x0
+    warm = init.warm_members(size)
+    if warm > 0:
+        spread = init.warm_start_spread * bounds.width
+        cloud = x0 + rng.standard_normal((warm, bounds.dim)) * spread
+        apply_bounds_inplace(
+            cloud, bounds.lower, bounds.upper, BoundHandling.REFLECT, np.empty((0, 0))
+        )
+        points[1 : warm + 1] = cloud
+    return points
+
+
 def initial_population(
     counter: EvaluationCounter,
     bounds: Bounds,
     rng: np.random.Generator,
     size: int,
     x0: np.ndarray | None,
+    init: WarmStartInit = UNIFORM_START,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``size`` uniform points in the box (row 0 = ``x0`` when given) and their costs.
+    """The initial members (:func:`starting_points`) and their costs.
 
     Rows beyond the remaining evaluation budget are left unevaluated with
     cost ``+inf``, so they lose every comparison.
     """
-    points = bounds.sample(rng, size)
-    if x0 is not None:
-        points[0] = x0
+    points = starting_points(bounds, rng, size, x0, init)
     costs = evaluate_prefix(counter, points)
     return points, costs
 
@@ -188,12 +258,11 @@ def compiled_initial_population(
     size: int,
     x0: np.ndarray | None,
     max_evaluations: int | None,
+    init: WarmStartInit = UNIFORM_START,
 ) -> tuple[np.ndarray, np.ndarray, CompiledStart]:
     """:func:`initial_population` for a compiled solve: the same points, costs and draws."""
     start = CompiledStart(*new_tally(bounds.dim, max_evaluations), perf_counter())
-    points = bounds.sample(rng, size)
-    if x0 is not None:
-        points[0] = x0
+    points = starting_points(bounds, rng, size, x0, init)
     costs = compiled_evaluate_prefix(
         objective.address, objective.data, points, start.counts, start.best
     )

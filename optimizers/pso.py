@@ -21,6 +21,10 @@ One class covers the registered PSOs:
   ICICIC 2007: ``w = (w_start - w_end)(1 - s) + w_end z``, with ``s`` the
   progress in [0, 1] and ``z`` a chaotic sequence.
 
+Every configuration starts uniformly in the box with particle 0 at the warm start; the
+``-warm`` variant (``pso-warm``) starts a share of the swarm in a cloud around it instead
+(:class:`~formation_bench.optimizers.population.WarmStartInit`, not in the sources above).
+
 Velocities start at zero and are clamped per coordinate to
 ``velocity_clamp * (upper - lower)``. Positions leaving the box are brought back
 by ``bound_handling`` (clip, reflect, or random re-initialisation of the
@@ -51,6 +55,7 @@ from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.chaos import apply_map
 from formation_bench.optimizers.compiled import CompiledObjective
 from formation_bench.optimizers.population import (
+    WarmStartInit,
     compiled_initial_population,
     evaluate_and_select,
     initial_population,
@@ -96,10 +101,13 @@ class PSOState(NamedTuple):
     """Current value of the chaotic inertia sequence (unused unless chaotic inertia)."""
 
 
+# WarmStartInit leads the bases because dataclass fields follow the reversed MRO: its settings
+# then come after PSOConfig's, whose positions and listing order stay as they were
 @dataclass(frozen=True)
-class PSO(PSOConfig, PopulationOptimizer[PSOState]):
-    """Global-best PSO; see the module docstring for the variants and their sources, and
-    :class:`~formation_bench.optimizers.pso_ops.PSOConfig` for the settings."""
+class PSO(WarmStartInit, PSOConfig, PopulationOptimizer[PSOState]):
+    """Global-best PSO; see the module docstring for the variants and their sources,
+    :class:`~formation_bench.optimizers.pso_ops.PSOConfig` for the settings and
+    :class:`~formation_bench.optimizers.population.WarmStartInit` for the initial swarm."""
 
     @property
     def default_budget(self) -> Budget:
@@ -119,9 +127,10 @@ class PSO(PSOConfig, PopulationOptimizer[PSOState]):
         x0: np.ndarray | None,
         max_iterations: int,
     ) -> PSOState:
-        """N uniform particles (particle 0 at ``x0`` if given) at rest, evaluated in one batch."""
+        """N particles at rest (particle 0 at ``x0`` if given, a share around it if configured,
+        the rest uniform), evaluated in one batch."""
         n, d = self.population_size, bounds.dim
-        x, f = initial_population(counter, bounds, rng, n, x0)
+        x, f = initial_population(counter, bounds, rng, n, x0, self)
         coefficients, inertia_z = self.chaotic_seeds(rng, n, d)
         return PSOState(
             x=x,
@@ -220,7 +229,7 @@ class PSO(PSOConfig, PopulationOptimizer[PSOState]):
         t_max = self.planned_iterations(budget)
         n, d = self.population_size, bounds.dim
         x, f, start = compiled_initial_population(
-            objective, bounds, rng, n, x0, budget.max_evaluations
+            objective, bounds, rng, n, x0, budget.max_evaluations, self
         )
         coefficients, inertia_z = self.chaotic_seeds(rng, n, d)
         packed = self.pso_settings(bounds, t_max)
@@ -245,10 +254,22 @@ class PSO(PSOConfig, PopulationOptimizer[PSOState]):
         )  # fmt: skip
 
 
+WARM_START_SHARE = 0.9
+"""``warm_start_share`` of ``pso-warm``: chosen with the spread on the instance
+library's validation split (docs/optimizers.md, "Initial population around the warm start")."""
+WARM_START_SPREAD = 0.005
+"""``warm_start_spread`` of ``pso-warm``, chosen with the share."""
+
 register(
     "pso",
     PSO(),
     "Global-best PSO, inertia 0.9 -> 0.4, c1 = c2 = 2, velocity clamp 0.2 x range, clip",
+)
+register(
+    "pso-warm",
+    PSO(warm_start_share=WARM_START_SHARE, warm_start_spread=WARM_START_SPREAD),
+    f"pso with {WARM_START_SHARE:.0%} of the initial swarm drawn around the warm start "
+    f"(std {WARM_START_SPREAD:g} x range), the rest uniform",
 )
 register(
     "pso-constriction",

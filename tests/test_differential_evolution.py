@@ -1,4 +1,7 @@
-"""Differential evolution: a generation by hand with fixed random numbers; agreement with scipy."""
+"""Differential evolution: a generation by hand with fixed random numbers; agreement with scipy.
+
+Immediate updating against scipy, and by hand, is in ``test_de_reference.py``.
+"""
 
 from __future__ import annotations
 
@@ -13,8 +16,10 @@ import pytest
 from scipy.optimize import differential_evolution
 from scipy.stats import mannwhitneyu
 
-from formation_bench.fields import kernel_field_names
+from formation_bench.benchmarks.instances.library import shipped
+from formation_bench.fields import describe_fields, kernel_field_names
 from formation_bench.optimizers import Bounds, Budget, DifferentialEvolution, get_optimizer
+from formation_bench.optimizers.base import EvaluationCounter
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.de_ops import (
     PARTNER_UNIFORMS,
@@ -22,12 +27,17 @@ from formation_bench.optimizers.de_ops import (
     DEConfig,
     DESettings,
     DEStrategy,
+    DEUpdating,
+    de_block,
     de_generation,
     distinct_partners,
+    immediate_trial,
+    make_trial,
     make_trials,
     select_trials,
     uniforms_per_generation,
 )
+from formation_bench.optimizers.population import WarmStartInit
 
 RAND, TO_BEST = int(DEStrategy.RAND_1_BIN), int(DEStrategy.CURRENT_TO_BEST_1_BIN)
 WIDE = 100.0
@@ -166,6 +176,22 @@ def test_a_generation_selects_first_then_mutates_around_the_new_best() -> None:
 def test_configuration_and_registered_variants() -> None:
     assert get_optimizer("de") == DifferentialEvolution()
     assert get_optimizer("de").bound_handling is BoundHandling.RESAMPLE
+    assert get_optimizer("de").updating is DEUpdating.DEFERRED
+    assert get_optimizer("de").warm_start_share == 0.0
+    assert get_optimizer("de-immediate") == DifferentialEvolution(updating="immediate")
+    warm = get_optimizer("de-immediate-warm")
+    assert isinstance(warm, WarmStartInit) and warm.warm_start_share > 0.0
+    assert warm == DifferentialEvolution(
+        updating=warm.updating,
+        warm_start_share=warm.warm_start_share,
+        warm_start_spread=warm.warm_start_spread,
+    )
+    names = [f.name for f in describe_fields(DifferentialEvolution)]
+    assert names[-3:] == ["updating", "warm_start_share", "warm_start_spread"]
+    with pytest.raises(ValueError, match="updating"):
+        DifferentialEvolution(updating="sometimes")
+    with pytest.raises(ValueError, match="warm_start_share"):
+        get_optimizer("de", warm_start_share=1.5)
     assert get_optimizer("de-current-to-best").strategy is DEStrategy.CURRENT_TO_BEST_1_BIN
     assert DifferentialEvolution(strategy="current-to-best-1-bin") == get_optimizer(
         "de-current-to-best"
@@ -178,24 +204,26 @@ def test_configuration_and_registered_variants() -> None:
         DifferentialEvolution(crossover_rate=1.5)
 
 
-def test_the_kernel_reads_exactly_its_declared_settings_by_name() -> None:
+def test_the_kernels_read_exactly_their_declared_settings_by_name() -> None:
     declared = set(kernel_field_names(DEConfig)) | set(PER_SOLVE)
     assert declared == set(DESettings._fields)
-    tree = ast.parse(textwrap.dedent(inspect.getsource(de_generation.py_func)))
-    read = {
-        node.attr
-        for node in ast.walk(tree)
-        if isinstance(node, ast.Attribute) and getattr(node.value, "id", None) == "s"
-    }
+    read = set()
+    for kernel in (de_generation, immediate_trial, de_block):
+        tree = ast.parse(textwrap.dedent(inspect.getsource(kernel.py_func)))
+        read |= {
+            node.attr
+            for node in ast.walk(tree)
+            if isinstance(node, ast.Attribute) and getattr(node.value, "id", None) == "s"
+        }
+        handed_on = [
+            (kw.arg, kw.value.attr)
+            for call in ast.walk(tree)
+            if isinstance(call, ast.Call)
+            for kw in call.keywords
+            if isinstance(kw.value, ast.Attribute)
+        ]
+        assert all(arg == attr for arg, attr in handed_on), kernel
     assert read == declared
-    handed_on = [
-        (kw.arg, kw.value.attr)
-        for call in ast.walk(tree)
-        if isinstance(call, ast.Call)
-        for kw in call.keywords
-        if isinstance(kw.value, ast.Attribute)
-    ]
-    assert handed_on and all(arg == attr for arg, attr in handed_on)
 
 
 def test_random_numbers_per_generation_follow_the_layout() -> None:
@@ -215,6 +243,116 @@ def test_random_numbers_per_generation_follow_the_layout() -> None:
         res = config.minimize(spy, box, np.random.default_rng(0), Budget(max_evaluations=40))
         # 6 initial members, then 5 generations of 6 and one cut to 4 trials
         assert (res.nfev, res.nit, spy.rows) == (40, 6, 40)
+
+
+@pytest.mark.parametrize("strategy", [RAND, TO_BEST])
+@pytest.mark.parametrize("mode", list(BoundHandling))
+def test_a_single_trial_is_the_row_of_a_generation_of_trials(strategy, mode) -> None:
+    """Immediate updating makes the trials one at a time from the same numbers as a deferred
+    generation: on the same population each is that generation's row, to the bit."""
+    rng = np.random.default_rng(5)
+    n, d = 6, 4
+    x = rng.uniform(-1.0, 1.0, size=(n, d))
+    u = rng.random(uniforms_per_generation(n, d, resample=True))
+    lower, upper = np.full(d, -1.0), np.full(d, 1.0)
+    args = (strategy, 0.9, 0.8, int(mode), lower, upper, u)
+    every = make_trials(x, 2, *args)
+    unbounded = make_trials(x, 2, strategy, 0.9, 0.8, int(mode), 10 * lower, 10 * upper, u)
+    assert np.any(np.abs(unbounded) > 1.0)  # the bound handling has work to do
+    for i in range(n):
+        np.testing.assert_array_equal(make_trial(x, i, 2, *args), every[i : i + 1])
+
+
+def test_immediate_updating_evaluates_one_trial_at_a_time_within_the_budget() -> None:
+    class Spy:
+        def __init__(self) -> None:
+            self.calls: list[int] = []
+
+        def __call__(self, x: np.ndarray) -> np.ndarray:
+            self.calls.append(x.shape[0])
+            return np.einsum("ij,ij->i", x, x)
+
+    box = Bounds(np.full(3, -1.0), np.full(3, 1.0))
+    rngs = []
+    for updating in DEUpdating:
+        config = DifferentialEvolution(population_size=6, updating=updating)
+        spy = Spy()
+        rng = np.random.default_rng(0)
+        res = config.minimize(spy, box, rng, Budget(max_evaluations=40))
+        # 6 initial members, then 5 generations of 6 trials and one cut to 4
+        assert (res.nfev, res.nit, sum(spy.calls)) == (40, 6, 40)
+        assert res.history_nfev.tolist() == [6, 12, 18, 24, 30, 36, 40]
+        if updating is DEUpdating.IMMEDIATE:
+            assert spy.calls == [6] + [1] * 34
+        else:
+            assert spy.calls == [6] * 6 + [4]
+        rngs.append(rng)
+    # the same numbers drawn in either mode
+    assert rngs[0].bit_generator.state == rngs[1].bit_generator.state
+
+
+class PlainCallable:
+    """A problem without its compiled handle: solved by the Python loop."""
+
+    def __init__(self, objective) -> None:
+        self.objective = objective
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self.objective(x)
+
+
+IMMEDIATE_AND_WARM = [
+    DifferentialEvolution(updating=DEUpdating.IMMEDIATE, strategy=DEStrategy.CURRENT_TO_BEST_1_BIN),
+    DifferentialEvolution(updating=DEUpdating.IMMEDIATE, bound_handling=BoundHandling.CLIP),
+    DifferentialEvolution(
+        updating=DEUpdating.IMMEDIATE, bound_handling=BoundHandling.REFLECT, population_size=7
+    ),
+    DifferentialEvolution(warm_start_share=0.25, warm_start_spread=0.1),
+    DifferentialEvolution(
+        updating=DEUpdating.IMMEDIATE, warm_start_share=1.0, strategy="current-to-best-1-bin"
+    ),
+]
+
+
+@pytest.mark.parametrize("optimizer", IMMEDIATE_AND_WARM, ids=repr)
+def test_compiled_and_python_solves_agree_for_immediate_and_warm_configurations(optimizer):
+    instance = shipped()[3]
+    problem, bounds = instance.problem, instance.problem.bounds
+    budgets = [None, Budget(max_evaluations=1001), Budget(max_evaluations=31), Budget(3)]
+    for k, budget in enumerate(budgets):
+        x0 = instance.warm_start if k != 2 else None
+        python_rng, compiled_rng = np.random.default_rng(k), np.random.default_rng(k)
+        python = optimizer.minimize(PlainCallable(problem), bounds, python_rng, budget, x0)
+        compiled = optimizer.minimize(problem, bounds, compiled_rng, budget, x0)
+        assert math.isnan(compiled.info["objective_time_s"])
+        assert np.array_equal(python.x, compiled.x) and python.fun == compiled.fun, budget
+        assert (python.nfev, python.nit, python.message) == (
+            compiled.nfev, compiled.nit, compiled.message,
+        )  # fmt: skip
+        assert np.array_equal(python.history_fun, compiled.history_fun)
+        assert np.array_equal(python.history_nfev, compiled.history_nfev)
+        assert python_rng.random() == compiled_rng.random()
+
+
+def test_the_warm_start_settings_shape_the_initial_population() -> None:
+    box = Bounds(np.full(4, -10.0), np.full(4, 10.0))
+    x0 = np.full(4, 3.0)
+
+    def population(config: DifferentialEvolution, x0: np.ndarray | None) -> np.ndarray:
+        counter = EvaluationCounter(lambda x: (x * x).sum(axis=1), 4, None)
+        return config.init(counter, box, np.random.default_rng(1), x0, 10).x
+
+    uniform = population(DifferentialEvolution(), x0)
+    warm = population(DifferentialEvolution(warm_start_share=0.5, warm_start_spread=0.01), x0)
+    assert np.array_equal(uniform[0], x0) and np.array_equal(warm[0], x0)
+    # rows 1-15 around the warm start (0.01 of the range 20 is 0.2), the rest uniform as before
+    assert np.all(np.abs(warm[1:16] - x0) < 1.5)
+    np.testing.assert_array_equal(warm[16:], uniform[16:])
+    # without a warm start there is nothing to start around
+    np.testing.assert_array_equal(
+        population(DifferentialEvolution(warm_start_share=0.5), None),
+        population(DifferentialEvolution(), None),
+    )
 
 
 # --- agreement with scipy.optimize.differential_evolution ----------------------------------------

@@ -205,7 +205,8 @@ REGISTERED = {
     ),
     "cma-es": (
         "CMAES",
-        "CMA-ES (Hansen's tutorial defaults, active), sigma0 0.2 x range, restarts same lambda",
+        "CMA-ES (Hansen's tutorial, active) with pycma's constants and BoundTransform, "
+        "sigma0 0.2 x range, restarts same lambda",
         {},
     ),
     "cma-es-bipop": (
@@ -218,6 +219,11 @@ REGISTERED = {
         "IPOP-CMA-ES: restarts doubling the population (Auger & Hansen 2005)",
         {"restarts": "ipop"},
     ),
+    "cma-es-warm": (
+        "CMAES",
+        "CMA-ES for a nearly right warm start: sigma0 0.02 x range (tuned on the validation split)",
+        {"sigma0": 0.02},
+    ),
     "de": (
         "DifferentialEvolution",
         "Differential evolution DE/rand/1/bin (Storn & Price 1997), N = 30, F = 0.5, CR = 0.9",
@@ -227,6 +233,18 @@ REGISTERED = {
         "DifferentialEvolution",
         "Differential evolution DE/current-to-best/1/bin, N = 30, F = 0.5, CR = 0.9",
         {"strategy": "current_to_best_1_bin"},
+    ),
+    "de-immediate": (
+        "DifferentialEvolution",
+        "Differential evolution DE/rand/1/bin, N = 30, F = 0.5, CR = 0.9, immediate updating "
+        "(each trial selected before the next is made: scipy's default)",
+        {"updating": "immediate"},
+    ),
+    "de-immediate-warm": (
+        "DifferentialEvolution",
+        "de-immediate with 90% of the initial population drawn around the warm start (std "
+        "0.02 x range), the rest uniform",
+        {"updating": "immediate", "warm_start_share": 0.9, "warm_start_spread": 0.02},
     ),
     "ipopt": (
         "IpoptOptimizer",
@@ -320,6 +338,12 @@ REGISTERED = {
         "Shi's BSO with the modified BSO's step (0.1 x range instead of N(0, 1))",
         {"step_relative_to_range": True, "step_scale": 0.1},
     ),
+    "original-bso-warm": (
+        "OriginalBSO",
+        "original-bso with 90% of the initial ideas drawn around the warm start (std 0.005 x "
+        "range), the rest uniform; not Shi's start",
+        {"warm_start_share": 0.9, "warm_start_spread": 0.005},
+    ),
     "pso": (
         "PSO",
         "Global-best PSO, inertia 0.9 -> 0.4, c1 = c2 = 2, velocity clamp 0.2 x range, clip",
@@ -346,6 +370,12 @@ REGISTERED = {
         "mealpy's grey wolf optimizer (OriginalGWO), pop 30",
         {"algorithm": "OriginalGWO"},
     ),
+    "modified-bso-warm": (
+        "ModifiedBSO",
+        "modified-bso with 90% of the initial population drawn around the warm start (std "
+        "0.005 x range), the rest uniform; not the paper's start",
+        {"warm_start_share": 0.9, "warm_start_spread": 0.005},
+    ),
     "ng-de": (
         "NevergradOptimizer",
         "nevergrad's TwoPointsDE (its DE for parallel settings), 30 per batch",
@@ -355,6 +385,12 @@ REGISTERED = {
         "NevergradOptimizer",
         "nevergrad's NGOpt (picks its algorithm for the dimension and budget), 30 per batch",
         {},
+    ),
+    "pso-warm": (
+        "PSO",
+        "pso with 90% of the initial swarm drawn around the warm start (std 0.005 x range), "
+        "the rest uniform",
+        {"warm_start_share": 0.9, "warm_start_spread": 0.005},
     ),
     "pycma": (
         "PyCMA",
@@ -366,7 +402,8 @@ REGISTERED = {
 CLASS_DEFAULTS = {
     "CMAES": {
         "active": True,
-        "bound_handling": "reflect",
+        "bound_handling": "transform",
+        "constants": "pycma",
         "lamarckian": False,
         "max_evaluations": 1230,
         "population_size": None,
@@ -392,6 +429,8 @@ CLASS_DEFAULTS = {
         "slope": 20.0,
         "step_relative_to_range": False,
         "step_scale": 1.0,
+        "warm_start_share": 0.0,
+        "warm_start_spread": 0.05,
     },
     "DifferentialEvolution": {
         "bound_handling": "resample",
@@ -400,6 +439,9 @@ CLASS_DEFAULTS = {
         "max_iterations": 40,
         "population_size": 30,
         "strategy": "rand_1_bin",
+        "updating": "deferred",
+        "warm_start_share": 0.0,
+        "warm_start_spread": 0.05,
     },
     "IpoptOptimizer": {
         "acceptable_tol": 0.0001,
@@ -442,6 +484,8 @@ CLASS_DEFAULTS = {
         "step_relative_to_range": True,
         "step_scale": 0.1,
         "weight_map": "logistic",
+        "warm_start_share": 0.0,
+        "warm_start_spread": 0.05,
     },
     "OriginalBSO": {
         "bound_handling": "clip",
@@ -456,6 +500,8 @@ CLASS_DEFAULTS = {
         "slope": 20.0,
         "step_relative_to_range": False,
         "step_scale": 1.0,
+        "warm_start_share": 0.0,
+        "warm_start_spread": 0.05,
     },
     "PSO": {
         "bound_handling": "clip",
@@ -470,6 +516,8 @@ CLASS_DEFAULTS = {
         "max_iterations": 40,
         "population_size": 30,
         "velocity_clamp": 0.2,
+        "warm_start_share": 0.0,
+        "warm_start_spread": 0.05,
     },
     "RandomSearch": {
         "max_iterations": 40,

@@ -12,11 +12,11 @@ from formation_bench.benchmarks.analysis import ioh_export
 from formation_bench.benchmarks.analysis.scoring import (
     TARGETS,
     evaluations_to_target,
-    relative_gap,
+    normalised_gap,
 )
 from formation_bench.benchmarks.cli import main
 from formation_bench.benchmarks.experiments import score
-from formation_bench.benchmarks.instances.library import Library, shipped
+from formation_bench.benchmarks.instances.library import Library, load_shipped
 
 ioh = pytest.importorskip("ioh")
 
@@ -25,12 +25,17 @@ BUDGET = 300
 
 
 def small_library(size: int = 6) -> Library:
-    """A few instances of the shipped library, spread over its scenarios and triggers."""
-    library = shipped()
+    """A few instances of library v1, spread over its scenarios and triggers; with 6, one
+    of them (v1's 402) is degenerate."""
+    library = load_shipped("v1")
     pick = np.linspace(0, len(library) - 1, size).astype(int)
     return Library(
         library.version, library.manifest, {k: v[pick] for k, v in library.arrays.items()}
     )
+
+
+def test_the_small_library_holds_a_degenerate_instance():
+    assert [i.degenerate for i in small_library()] == [False] * 4 + [True, False]
 
 
 @pytest.fixture(scope="module")
@@ -66,9 +71,11 @@ def test_score_rows_keep_the_improvements_of_the_best_cost(scored):
         assert (np.diff(nfev) > 0).all() and (np.diff(fun) < 0).all()
         assert nfev[-1] <= row["nfev"] and fun[-1] == row["fun"]
         assert len(row["x"]) == library[row["instance"]].warm_start.size
-        # the improvements alone give the stored evaluations to every target
+        # the improvements alone give the stored evaluations to every normalised target
         for target in TARGETS:
-            hit = evaluations_to_target(nfev, fun, row["j_star"], target)
+            hit = evaluations_to_target(nfev, fun, row["j_star"], row["warm_cost"], target)
+            if row["degenerate"]:
+                hit = np.nan
             stored = row[score.target_column(target)]
             assert hit == stored or (np.isnan(hit) and np.isnan(stored))
     # and they are the points where the full history of the solve fell to a new low
@@ -89,12 +96,16 @@ def test_score_rows_keep_the_improvements_of_the_best_cost(scored):
 
 def test_runs_stored_in_an_older_format_are_redone(tmp_path, monkeypatch):
     library = small_library(2)
-    monkeypatch.setattr(score, "shipped", lambda: library)
+    monkeypatch.setattr(score, "load_shipped", lambda version: library)
     (run,) = score.score_runs("random-search", {}, [(50, None)], [0], library=library)
     path = score.write_score(tmp_path, run, score.execute_score(run, library))
     assert score.stored_keys(tmp_path) == {run.key}
     old = pd.read_parquet(path).drop(columns=["improvement_nfev", "improvement_fun", "x"])
-    old.drop(columns="score_format").to_parquet(path)
+    old.drop(columns="score_format").to_parquet(path)  # format 1, unsealed
+    assert score.stored_keys(tmp_path) == set()
+    # format 2, sealed: without the normalised gap and its columns
+    format2 = old.drop(columns=["normalised_gap", "warm_cost", "degenerate", "content_hash"])
+    score.write_score(tmp_path, run, format2.assign(score_format=2))
     assert score.stored_keys(tmp_path) == set()
     assert [r.key for r in score.run_scores([run], tmp_path, jobs=1)] == [run.key]
     assert score.stored_keys(tmp_path) == {run.key}
@@ -107,8 +118,12 @@ def test_runs_stored_in_an_older_format_are_redone(tmp_path, monkeypatch):
 
 def test_export_holds_every_run_with_its_stored_history(scored, capsys):
     assert main(["export-ioh", str(scored), "--out", str(scored / "ioh"), "--zip"]) == 0
-    assert "2 algorithms, 18 runs" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    # 3 solves of the degenerate instance (pso seeds 0, 1; cma-es seed 0) left out
+    assert "2 algorithms, 15 runs (3 solves of degenerate instances left out)" in printed
+    assert "raw_y is the normalised gap" in printed
     rows = score.load_scores(scored)
+    rows = rows[~rows["degenerate"]]
     folders = sorted(p.name for p in (scored / "ioh").iterdir())
     assert folders == [f"cma-es@max_evaluations={BUDGET}", f"pso@max_evaluations={BUDGET}"]
     for name, seeds in RUNS:
@@ -121,7 +136,7 @@ def test_export_holds_every_run_with_its_stored_history(scored, capsys):
         assert scenario["dimension"] == 10
         headers, lines = parse_dat(folder / scenario["path"])
         mine = rows[rows["optimizer"] == name].sort_values(["seed", "instance"])
-        assert len(headers) == len(lines) == len(scenario["runs"]) == len(mine) == 6 * len(seeds)
+        assert len(headers) == len(lines) == len(scenario["runs"]) == len(mine) == 5 * len(seeds)
         assert set(headers) == {"evaluations raw_y"}
         for run, data, row in zip(scenario["runs"], lines, mine.itertuples(), strict=True):
             assert (run["instance"], run["seed"], run["evals"]) == (
@@ -129,15 +144,16 @@ def test_export_holds_every_run_with_its_stored_history(scored, capsys):
                 row.seed,
                 row.nfev,
             )
-            assert run["j_star"] == row.j_star and run["best"]["y"] == row.gap
+            assert run["j_star"] == row.j_star and run["warm_cost"] == row.warm_cost
+            assert run["best"]["y"] == row.normalised_gap
             assert run["best"]["x"] == list(row.x)
-            gaps = relative_gap(np.asarray(row.improvement_fun), row.j_star)
+            gaps = normalised_gap(np.asarray(row.improvement_fun), row.j_star, row.warm_cost)
             k = len(row.improvement_nfev)
             np.testing.assert_array_equal(data[:k, 0], row.improvement_nfev)
             np.testing.assert_array_equal(data[:k, 1], gaps)  # full precision, read back exactly
             # then the last evaluation, unless the last improvement was at it
             assert len(data) == k + (row.nfev > row.improvement_nfev[-1])
-            assert tuple(data[-1]) == (row.nfev, row.gap)
+            assert tuple(data[-1]) == (row.nfev, row.normalised_gap)
     with zipfile.ZipFile(scored / "ioh.zip") as zipped:
         names = sorted(zipped.namelist())
     assert names == sorted(
@@ -149,7 +165,8 @@ def test_layout_matches_what_the_ioh_logger_writes(scored, tmp_path):
     """Replay the stored cma-es solves (whose first record is the first evaluation) through
     ``ioh``'s own Analyzer logger and compare with the export."""
     rows = score.load_scores(scored)
-    rows = rows[rows["optimizer"] == "cma-es"].sort_values(["seed", "instance"])
+    rows = rows[(rows["optimizer"] == "cma-es") & ~rows["degenerate"]]
+    rows = rows.sort_values(["seed", "instance"])
     assert (rows["improvement_nfev"].map(lambda n: n[0]) == 1).all()
     algorithm = f"cma-es @ max_evaluations={BUDGET}"
     logger = ioh.logger.Analyzer(
@@ -163,15 +180,15 @@ def test_layout_matches_what_the_ioh_logger_writes(scored, tmp_path):
     class Run:
         seed = 0.0
         j_star = 0.0
+        warm_cost = 0.0
 
     now = Run()
-    logger.add_run_attributes(now, ["j_star", "seed"])
+    logger.add_run_attributes(now, list(ioh_export.RUN_ATTRIBUTES))
     logger.set_experiment_attributes({"library": "v1"})
     for row in rows.itertuples():
         # the recorded best so far as a function of the evaluation count
-        steps = dict(
-            zip(row.improvement_nfev, relative_gap(row.improvement_fun, row.j_star), strict=True)
-        )
+        gaps = normalised_gap(row.improvement_fun, row.j_star, row.warm_cost)
+        steps = dict(zip(row.improvement_nfev, gaps, strict=True))
         best, recorded = np.inf, []
         for n in range(1, row.nfev + 1):
             best = steps.get(n, best)
@@ -187,7 +204,7 @@ def test_layout_matches_what_the_ioh_logger_writes(scored, tmp_path):
         )
         problem.set_id(1)
         problem.attach_logger(logger)
-        now.seed, now.j_star = float(row.seed), float(row.j_star)
+        now.seed, now.j_star, now.warm_cost = float(row.seed), float(row.j_star), row.warm_cost
         for _ in range(row.nfev):
             problem(np.asarray(row.x))
         problem.reset()
@@ -223,7 +240,7 @@ def test_layout_matches_what_the_ioh_logger_writes(scored, tmp_path):
     assert mine_scenario["path"] == logged_scenario["path"]
     for a, b in zip(mine_scenario["runs"], logged_scenario["runs"], strict=True):
         assert list(a) == list(b) and list(a["best"]) == list(b["best"])
-        for key in ("instance", "evals", "seed", "j_star"):
+        for key in ("instance", "evals", "seed", "j_star", "warm_cost"):
             assert a[key] == b[key]
         assert a["best"]["evals"] == b["best"]["evals"]
         assert a["best"]["y"] == pytest.approx(b["best"]["y"], rel=1e-12, abs=1e-15)
@@ -242,11 +259,15 @@ def test_export_refuses_bad_input(scored, tmp_path, capsys):
     source = sorted((scored / "score").glob("*.parquet"))[0]
     frame = pd.read_parquet(source).drop(columns=["improvement_nfev", "improvement_fun", "x"])
     frame.to_parquet(old / "score" / source.name)
+    older = tmp_path / "older"  # a run of score format 2 (no normalised gap)
+    (older / "score").mkdir(parents=True)
+    pd.read_parquet(source).assign(score_format=2).to_parquet(older / "score" / source.name)
     (tmp_path / "taken").mkdir()
     (tmp_path / "taken" / "file").write_text("x")
     cases = [
         ([str(tmp_path / "none")], "holds no score runs"),
         ([str(old), "--out", str(tmp_path / "o")], "stored without the improvement history"),
+        ([str(older), "--out", str(tmp_path / "o")], "1 score run(s) were stored in an older"),
         ([str(scored), "--out", str(tmp_path / "taken")], "folder exists and is not empty"),
     ]
     for argv, needle in cases:

@@ -1,17 +1,15 @@
-"""cma-es and de reach their reference libraries' quality on the instance library.
+"""de and de-current-to-best reach scipy's quality on the instance library.
 
-Every 8th problem of the shipped library (63 recorded paper problems), from the problem's warm
-start, at the optimiser's default budget (1230 evaluations), one seed per problem:
-
-- ``cma-es`` against pycma (the ``pycma`` adapter: pycma's own CMA-ES with the same start,
-  sigma0 = 0.2 x range and the box as bounds);
-- ``de`` and ``de-current-to-best`` against ``scipy.optimize.differential_evolution`` with the
-  same settings (N = 30, F = 0.5, CR = 0.9, the warm start as member 0, deferred updating, no
-  polishing, the same 41 generations).
-
-The two-sided Wilcoxon signed-rank test on the paired relative gaps to J* must not reject
-equality (p > 0.01), and the medians must lie within a factor of 10. The seeds are fixed, so
-the p-values are too: a regression check of agreement, as in test_cma_reference.py.
+The test split of the shipped library (its problems counted once, the degenerate stratum left
+out), from each problem's warm start, at the optimiser's default budget (1230 evaluations), one
+seed per problem: ``de`` and ``de-current-to-best`` against
+``scipy.optimize.differential_evolution`` with the same settings (N = 30, F = 0.5, CR = 0.9, the
+warm start as member 0, deferred updating, no polishing, the same 41 generations). The two-sided
+Wilcoxon signed-rank test on the paired relative gaps to J* must not reject equality
+(p > 0.01), and the medians must lie within a factor of 10. The seeds are fixed, so the p-values
+are too: a regression check of agreement. ``cma-es`` against pycma and ``de-immediate`` against
+scipy's immediate updating are checked on the same split in test_cma_reference.py and
+test_de_reference.py.
 """
 
 from __future__ import annotations
@@ -22,15 +20,13 @@ from scipy.optimize import differential_evolution
 from scipy.stats import wilcoxon
 
 from formation_bench.benchmarks.instances.library import Instance, shipped
-from formation_bench.optimizers import OPTIMIZERS, get_optimizer
-
-pytest.importorskip("cma")
+from formation_bench.optimizers import get_optimizer
 
 SCIPY_STRATEGY = {"de": "rand1bin", "de-current-to-best": "currenttobest1bin"}
 
 
 def problems() -> list[Instance]:
-    return list(shipped())[::8]
+    return shipped().instances("test")
 
 
 def our_gaps(name: str) -> np.ndarray:
@@ -74,11 +70,6 @@ def agree(ours: np.ndarray, reference: np.ndarray) -> None:
     assert 0.1 < ratio < 10.0, ratio
 
 
-@pytest.mark.skipif("pycma" not in OPTIMIZERS, reason="the pycma adapter needs the cma package")
-def test_cma_es_and_pycma_reach_the_same_gaps_on_the_library() -> None:
-    agree(our_gaps("cma-es"), our_gaps("pycma"))
-
-
 @pytest.mark.parametrize("name", list(SCIPY_STRATEGY))
 def test_de_and_scipy_reach_the_same_gaps_on_the_library(name: str) -> None:
     ours = our_gaps(name)
@@ -88,10 +79,10 @@ def test_de_and_scipy_reach_the_same_gaps_on_the_library(name: str) -> None:
 
 def test_the_check_tells_a_weaker_search_apart() -> None:
     """The test has power: de at its default against scipy's DE with ten times the
-    generations is rejected."""
-    ours = our_gaps("de")
+    generations is rejected (on every 4th problem: the stronger search is ten times as long)."""
+    ours = our_gaps("de")[::4]
     stronger = []
-    for instance in problems():
+    for instance in problems()[::4]:
         problem, bounds = instance.problem, instance.problem.bounds
         result = differential_evolution(
             lambda x, problem=problem: problem(np.ascontiguousarray(x.T)),

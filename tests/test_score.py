@@ -1,77 +1,253 @@
-"""``formation-bench score`` on the shipped library, then ``report`` on its results."""
+"""``formation-bench score`` over a split of the library, then ``report`` on its results.
+
+The split library here is a small synthetic v2 built from v1 instances (every other one in
+the test split, one marked degenerate), so the tests do not depend on the size of the
+shipped v2; one test scores the whole shipped v1.
+"""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from formation_bench.benchmarks.analysis.score_report import write_score_report
 from formation_bench.benchmarks.cli import main
+from formation_bench.benchmarks.experiments import score
+from formation_bench.benchmarks.experiments.errors import StoreError
 from formation_bench.benchmarks.experiments.score import (
+    SCORE_FORMAT,
+    ScoreError,
+    ScoreRun,
     execute_score,
     load_scores,
     score_runs,
     target_column,
 )
-from formation_bench.benchmarks.instances.library import shipped
+from formation_bench.benchmarks.instances import library as library_module
+from formation_bench.benchmarks.instances.library import PHASES, Library, load_shipped
+from formation_bench.benchmarks.spec import canonical_json
+
+DEGENERATE = 1
+"""The instance of the toy library marked degenerate (in the test split)."""
+BUDGET = ["--budgets", "200"]
+
+
+def split_library(size: int = 8) -> Library:
+    """``size`` instances of v1 as a library with splits: odd positions test, even
+    validation, instance :data:`DEGENERATE` degenerate."""
+    base = load_shipped("v1")
+    pick = np.linspace(0, len(base) - 1, size).astype(int)
+    sub = Library("v1", base.manifest, {k: v[pick] for k, v in base.arrays.items()})
+    instances = list(sub)
+    arrays = dict(sub.arrays)
+    arrays.update(
+        neighbour_count=np.full(size, arrays["neighbour_positions"].shape[1], dtype=np.int16),
+        centre_offset_sum=np.full((size, *arrays["reference"].shape[1:]), np.nan),
+        has_centre_offset_sum=np.zeros(size, dtype=bool),
+        content_hash=np.array([i.content_hash for i in instances]),
+        warm_cost=np.array([i.warm_cost for i in instances]),
+        degenerate=np.arange(size) == DEGENERATE,
+        phase_index=np.array([PHASES.index(i.phase) for i in instances], dtype=np.int8),
+        split_index=(np.arange(size) % 2).astype(np.int8),  # 0 validation, 1 test
+    )
+    return Library("v2", {**base.manifest, "format_version": 2}, arrays)
 
 
 @pytest.fixture(scope="module")
-def scored(tmp_path_factory):
-    out = tmp_path_factory.mktemp("score")
-    for name in ("pso", "modified-bso"):
-        argv = ["score", "--optimizer", name, "--budgets", "200", "default", "--seeds", "0", "1"]
-        assert main([*argv, "--out", str(out), "--jobs", "2"]) == 0
+def toy_v2():
+    """The toy library served as the shipped v2 (in this process: ``--jobs 1``)."""
+    toy = split_library()
+    real = library_module.load_shipped
+
+    def fake(version: str) -> Library:
+        return toy if version == "v2" else real(version)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(library_module, "load_shipped", fake)
+        patch.setattr(score, "load_shipped", fake)
+        yield toy
+
+
+def run_cli(*argv: str) -> int:
+    try:
+        return main(list(argv))
+    except SystemExit as stop:  # argparse's refusals
+        return int(stop.code)
+
+
+@pytest.fixture(scope="module")
+def scored(toy_v2, tmp_path_factory):
+    out = str(tmp_path_factory.mktemp("score"))
+    common = ["--library", "v2", *BUDGET, "--out", out, "--jobs", "1"]
+    assert run_cli("score", "--optimizer", "pso", "--seeds", "0", "1", *common) == 0
+    assert run_cli("score", "--optimizer", "modified-bso", "--split", "all", *common) == 0
+    assert run_cli("score", "--optimizer", "pso-warm", *common) == 0
     return out
 
 
-def test_score_stores_one_row_per_instance_and_run_and_resumes(scored, capsys):
+def test_score_solves_every_instance_of_its_split_degenerate_ones_included(scored, toy_v2):
     scores = load_scores(scored)
-    library = shipped()
-    assert len(scores) == 2 * 2 * 2 * len(library)  # optimisers x budgets x seeds
-    assert set(scores["budget"]) == {"max_evaluations=200", "default"}
-    small = scores[scores["budget"] == "max_evaluations=200"]
-    assert (small["nfev"] <= 200).all()
-    # the gap is measured against the shipped J*, and nothing beats it
-    j_star = np.array([library[k].j_star for k in small["instance"]])
-    np.testing.assert_allclose(small["gap"], (small["fun"] - j_star) / j_star)
-    assert small["gap"].min() >= -1e-6
-    # a target reached is reached within the evaluations used
-    reached = small[target_column(1e-1)].dropna()
-    assert (reached <= small.loc[reached.index, "nfev"]).all()
-    argv = ["score", "--optimizer", "pso", "--budgets", "200", "default", "--seeds", "0", "1"]
-    assert main([*argv, "--out", str(scored)]) == 0
+    pso = scores[scores["optimizer"] == "pso"]
+    test = toy_v2.instances("test", degenerate=None)
+    assert len(test) == 4 and any(i.degenerate for i in test)
+    # default split: test, each seed
+    assert len(pso) == 2 * len(test) and set(pso["split"]) == {"test"}
+    assert set(pso["run_split"]) == {"test"} and set(pso["library"]) == {"v2"}
+    every = scores[scores["optimizer"] == "modified-bso"]
+    assert len(every) == len(toy_v2) and set(every["run_split"]) == {"all"}
+    assert (scores["score_format"] == SCORE_FORMAT).all()
+    for row in scores.to_dict("records"):
+        instance = toy_v2[row["instance"]]
+        assert row["content_hash"] == instance.content_hash
+        assert (row["family"], row["phase"], row["split"]) == (
+            instance.family,
+            instance.phase,
+            instance.split,
+        )
+        assert (row["degenerate"], row["warm_cost"]) == (instance.degenerate, instance.warm_cost)
+        assert row["gap"] == pytest.approx(instance.gap(row["fun"]), rel=1e-12)
+        hits = [row[target_column(t)] for t in score.TARGETS]
+        if instance.degenerate:
+            assert math.isnan(row["normalised_gap"]) and all(math.isnan(h) for h in hits)
+        else:
+            assert row["normalised_gap"] == pytest.approx(
+                instance.normalised_gap(row["fun"]), rel=1e-12
+            )
+            assert row["normalised_gap"] >= -1e-6  # nothing beats J*
+            # a target is reached within the evaluations used, and only at a lower gap
+            for target, hit in zip(score.TARGETS, hits, strict=True):
+                assert math.isnan(hit) or hit <= row["nfev"]
+                if row["normalised_gap"] <= target:
+                    assert hit <= row["nfev"]
+
+
+def test_score_resumes(scored, capsys):
+    argv = ["score", "--optimizer", "pso", "--library", "v2", *BUDGET, "--seeds", "0", "1"]
+    assert run_cli(*argv, "--out", scored, "--jobs", "1") == 0
     assert "(0 new)" in capsys.readouterr().out
 
 
-def test_a_score_run_is_repeatable_and_independent_of_where_it_runs(scored):
-    (run,) = score_runs("pso", {}, [(200, None)], [1])
+def test_the_split_is_part_of_a_run_but_all_keeps_the_key_of_before(toy_v2):
+    runs = {
+        split: score_runs("pso", {}, [(200, None)], [0], library=toy_v2, split=split)[0]
+        for split in ("test", "validation", "all")
+    }
+    assert len({run.key for run in runs.values()}) == 3
+    assert len({run.entropy for run in runs.values()}) == 3
+    assert score_runs("pso", {}, [(200, None)], [0], library=toy_v2)[0].key == runs["test"].key
+    # a run over a whole library has the identity (and key) runs had before splits
+    legacy = {
+        "optimizer": "pso",
+        "optimizer_overrides": {},
+        "max_evaluations": 200,
+        "max_iterations": None,
+        "deadline_ms": None,
+        "seed": 0,
+        "library": "v2",
+    }
+    assert runs["all"].identity() == legacy
+    assert runs["test"].identity() == {**legacy, "split": "test"}
+    assert ScoreRun("pso", "pso", canonical_json({}), 200, None, None, 0, "v2").key == (
+        runs["all"].key
+    )
+
+
+@pytest.mark.slow  # two worker processes on all 504 instances of v1: about 7 s
+def test_a_score_run_over_v1_is_repeatable_and_independent_of_where_it_runs(tmp_path):
+    out = str(tmp_path / "v1")
+    argv = ["score", "--optimizer", "random-search", "--library", "v1", "--budgets", "20"]
+    assert run_cli(*argv, "--seeds", "0", "1", "--out", out, "--jobs", "2") == 0
+    stored = load_scores(out)
+    v1 = load_shipped("v1")
+    assert len(stored) == 2 * len(v1)  # v1 has no splits: all of it
+    assert set(stored["run_split"]) == {"all"} and set(stored["split"]) == {""}
+    (run,) = score_runs("random-search", {}, [(20, None)], [1], library=v1)
     again = execute_score(run)
-    stored = load_scores(scored)
     stored = stored[stored["run_key"] == run.key].reset_index(drop=True)
-    columns = ["instance", "fun", "gap", "nfev", "nit", target_column(1e-2)]
+    columns = ["instance", "content_hash", "fun", "gap", "normalised_gap", "nfev", "nit"]
+    columns.append(target_column(1e-1))
     pd.testing.assert_frame_equal(again[columns], stored[columns], check_dtype=False)
 
 
-def test_report_writes_the_score_statistics(scored, capsys):
-    assert main(["report", str(scored), "--out", str(scored / "rep")]) == 0
+def test_report_writes_the_leaderboard_and_its_tables(scored, toy_v2, capsys):
+    report = f"{scored}/rep"
+    assert run_cli("report", scored, "--out", report) == 0
     printed = capsys.readouterr().out
-    assert "# Score on the instance library v1" in printed and "## budget default" in printed
-    folder = scored / "rep"
-    summary = pd.read_csv(folder / "score_summary.csv")
-    assert set(summary["optimizer"]) == {"pso", "modified-bso"}
-    assert (summary["trials"] == 2 * len(shipped())).all()
-    for column in ("success_1e-02", "success_1e-03", "success_1e-04"):
+    assert "# Score on the instance library v2 (split all, test)" in printed
+    assert "**Ranked by the median normalised gap**" in printed
+    assert "score_phases.csv" in printed and "score_paired.csv" in printed
+    summary = pd.read_csv(f"{report}/score_summary.csv")
+    assert set(summary["optimizer"]) == {"pso", "pso-warm", "modified-bso"}
+    instances = summary.set_index("optimizer")["instances"]
+    # the non-degenerate problems of each run's split, each once
+    assert instances["pso"] == 3 and instances["modified-bso"] == len(toy_v2) - 1
+    assert summary.set_index("optimizer")["trials"]["pso"] == 2 * 3
+    assert sorted(summary["rank"]) == sorted(
+        summary["norm_gap_median"].rank(method="min").astype(int)
+    )
+    for column in ("success_norm_1e-02", "success_norm_1e-03", "success_norm_1e-04"):
         assert summary[column].between(0, 1).all()
-    assert (summary["success_1e-02"] >= summary["success_1e-04"]).all()
-    ert = pd.read_csv(folder / "score_ert.csv")
-    assert len(ert) == 4 * 6
-    finite = ert["ert_evaluations"].replace(math.inf, np.nan).dropna()
-    assert (finite > 0).all()
-    profile = pd.read_csv(folder / "score_profile.csv")
+    assert (summary["success_norm_1e-02"] >= summary["success_norm_1e-04"]).all()
+    degenerate = pd.read_csv(f"{report}/score_degenerate.csv").set_index("optimizer")
+    assert (degenerate["instances"] == 1).all() and len(degenerate) == 3
+    phases = pd.read_csv(f"{report}/score_phases.csv")
+    assert set(phases["phase"]) == set(PHASES) and len(phases) == 3 * len(PHASES)
+    paired = pd.read_csv(f"{report}/score_paired.csv")
+    assert list(zip(paired["x"], paired["y"], strict=True)) == [
+        ("pso", "modified-bso"),
+        ("pso-warm", "modified-bso"),
+        ("pso-warm", "pso"),
+    ]
+    assert (paired["pairs"] == 3).all()  # the test split's non-degenerate problems
+    ert = pd.read_csv(f"{report}/score_ert.csv")
+    assert len(ert) == 3 * len(score.TARGETS)
+    assert set(ert["target_norm_gap"]) == set(score.TARGETS)
+    profile = pd.read_csv(f"{report}/score_profile.csv")
     assert profile.groupby(["budget", "optimizer"])["share"].is_monotonic_increasing.all()
     for name in ("score_ecdf.png", "score_profile.png"):
-        assert (folder / "figures" / name).stat().st_size > 10_000
+        assert (Path(report) / "figures" / name).stat().st_size > 10_000
+
+
+def test_report_refuses_runs_of_an_older_score_format(scored, toy_v2, tmp_path, capsys):
+    (run,) = score_runs("random-search", {}, [(20, None)], [0], library=toy_v2)
+    frame = execute_score(run, toy_v2).assign(score_format=SCORE_FORMAT - 1)
+    with pytest.raises(StoreError, match=r"1 score run.* older score format"):
+        write_score_report(frame, tmp_path / "r", figures=False)
+    score.write_score(tmp_path / "old", run, frame)
+    assert run_cli("report", str(tmp_path / "old"), "--no-figures") == 2
+    err = capsys.readouterr().err
+    assert "older score format" in err and len(err.strip().splitlines()) == 1
+
+
+def test_score_refuses_a_split_the_library_does_not_have(tmp_path, capsys):
+    out = str(tmp_path / "s")
+    cases = [
+        (["--library", "v1", "--split", "test"], "--split: 'test' is not a split of library v1"),
+        (["--library", "v1", "--split", "validation"], "allowed: all"),
+        (["--split", "every"], "argument --split: invalid choice: 'every' (choose from"),
+        (["--library", "v3"], "argument --library: invalid choice: 'v3' (choose from"),
+    ]
+    for extra, needle in cases:
+        assert run_cli("score", "--optimizer", "pso", *extra, "--out", out) == 2
+        err = capsys.readouterr().err
+        assert needle in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "s").exists()
+    v1 = load_shipped("v1")
+    with pytest.raises(ScoreError, match=r"--split: 'test' .* allowed: all"):
+        score_runs("pso", {}, [(None, None)], [0], library=v1, split="test")
+    assert score_runs("pso", {}, [(None, None)], [0], library=v1)[0].split == "all"
+
+
+def test_split_choices_are_the_score_splits():
+    from formation_bench.benchmarks.cli import build_parser
+
+    parser = build_parser()
+    (sub,) = [a for a in parser._actions if a.dest == "command"]
+    actions = {a.dest: a for a in sub.choices["score"]._actions}
+    assert tuple(actions["split"].choices) == score.SPLITS
+    assert tuple(actions["library"].choices) == library_module.LIBRARY_VERSIONS
 
 
 def test_score_refuses_bad_input(tmp_path, capsys):
@@ -81,10 +257,7 @@ def test_score_refuses_bad_input(tmp_path, capsys):
         (["--optimizer", "pso", "--set", "population_size=1"], "population_size"),
     ]
     for extra, needle in cases:
-        try:
-            code = main(["score", *extra, "--out", str(tmp_path / "s")])
-        except SystemExit as stop:
-            code = stop.code
+        code = run_cli("score", *extra, "--out", str(tmp_path / "s"))
         assert code == 2
         err = capsys.readouterr().err
         assert needle in err and len(err.strip().splitlines()) == 1

@@ -1,4 +1,5 @@
-"""The scoring statistics against values worked out by hand on small tables."""
+"""The scoring statistics and the score report's tables against values worked out by hand
+on small tables."""
 
 import math
 
@@ -6,32 +7,73 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from formation_bench.benchmarks.analysis import score_report
 from formation_bench.benchmarks.analysis.scoring import (
+    SUCCESS_TARGETS,
+    TARGETS,
     evaluations_to_target,
     expected_running_time,
+    normalised_gap,
     performance_profile,
     relative_gap,
     runtime_ecdf,
     shifted_geometric_mean,
     success_rate,
 )
+from formation_bench.benchmarks.experiments.score import SCORE_FORMAT, target_column
+
+# --- the gaps and the statistics of trials ----------------------------------------------------
 
 
-def test_relative_gap_and_evaluations_to_target():
-    assert relative_gap(110.0, 100.0) == pytest.approx(0.1)
-    assert relative_gap(99.0, 100.0) == pytest.approx(-0.01)
+def test_relative_and_normalised_gap_on_three_instances():
+    # A: J* 100, warm start 200, f 150: half of the possible improvement left, half of J*
+    # B: J* 2, warm start 3, f 2.5: the same half left, but a quarter of J*
+    # C: J* 5, warm start 5 (already optimal), f 6: no normalised gap, relative 0.2
+    j_star = np.array([100.0, 2.0, 5.0])
+    warm = np.array([200.0, 3.0, 5.0])
+    cost = np.array([150.0, 2.5, 6.0])
+    np.testing.assert_allclose(relative_gap(cost, j_star), [0.5, 0.25, 0.2])
+    gaps = normalised_gap(cost, j_star, warm)
+    np.testing.assert_allclose(gaps[:2], [0.5, 0.5])
+    assert math.isnan(gaps[2])
+    # 1 at the warm start, 0 at J*, negative below it
+    assert normalised_gap(200.0, 100.0, 200.0) == 1.0
+    assert normalised_gap(100.0, 100.0, 200.0) == 0.0
+    assert normalised_gap(90.0, 100.0, 200.0) == pytest.approx(-0.1)
+
+
+def test_targets_are_declared_once_on_the_normalised_gap():
+    assert TARGETS == (1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6)
+    assert set(SUCCESS_TARGETS) <= set(TARGETS)
+    assert target_column(1e-3) == "evals_to_norm_1e-03"
+    assert score_report.success_column(1e-2) == "success_norm_1e-02"
+
+
+def test_evaluations_to_a_target_of_the_normalised_gap():
     nfev = np.array([10, 20, 30, 40])
-    best = np.array([200.0, 120.0, 100.5, 100.05])  # gaps 1, 0.2, 0.005, 0.0005
-    assert evaluations_to_target(nfev, best, 100.0, 0.25) == 20
-    assert evaluations_to_target(nfev, best, 100.0, 1e-2) == 30
-    assert evaluations_to_target(nfev, best, 100.0, 1e-3) == 40
-    assert math.isnan(evaluations_to_target(nfev, best, 100.0, 1e-4))
+    best = np.array([200.0, 150.0, 110.0, 100.05])  # normalised gaps 1, 0.5, 0.1, 5e-4
+    assert evaluations_to_target(nfev, best, 100.0, 200.0, 0.5) == 20
+    assert evaluations_to_target(nfev, best, 100.0, 200.0, 1e-1) == 30
+    assert evaluations_to_target(nfev, best, 100.0, 200.0, 1e-3) == 40
+    assert math.isnan(evaluations_to_target(nfev, best, 100.0, 200.0, 1e-4))
+    # a warm start that leaves nothing to gain has no normalised gap: never reached
+    assert math.isnan(evaluations_to_target(nfev, best, 100.0, 100.0, 0.5))
+    # J* 100, warm start 100.5: f 100.05 is within 1e-3 of J* (relative 5e-4), but leaves a
+    # tenth of the possible improvement: not at the normalised target 1e-3, only at 1e-1
+    near = np.array([100.05])
+    assert relative_gap(100.05, 100.0) <= 1e-3
+    assert math.isnan(evaluations_to_target(np.array([7]), near, 100.0, 100.5, 1e-3))
+    assert evaluations_to_target(np.array([7]), near, 100.0, 100.5, 1e-1) == 7
 
 
 def test_success_rate():
     gaps = np.array([0.0, 5e-3, 2e-2, 1e-4, 0.5])
     assert success_rate(gaps, 1e-2) == pytest.approx(3 / 5)
     assert success_rate(gaps, 1e-4) == pytest.approx(2 / 5)
+    # weights 1/2 on the first two (one problem solved twice): (1/2 + 1/2 + 1) / 4
+    weights = np.array([0.5, 0.5, 1.0, 1.0, 1.0])
+    assert success_rate(gaps, 1e-4, weights) == pytest.approx(1.5 / 4)
+    assert success_rate(np.array([np.nan, 0.0]), 1e-2) == 0.5  # no gap: no success
 
 
 def test_expected_running_time_counts_failures_at_their_full_cost():
@@ -41,12 +83,30 @@ def test_expected_running_time_counts_failures_at_their_full_cost():
     used = np.array([500.0, 1000.0, 800.0])
     assert expected_running_time(hits, used) == pytest.approx(700.0)
     assert expected_running_time(np.array([math.nan]), np.array([10.0])) == math.inf
+    # weighted (the first and third: one problem, 1/2 each): (50 + 1000 + 150) / 1 = 1200
+    weights = np.array([0.5, 1.0, 0.5])
+    assert expected_running_time(hits, used, weights) == pytest.approx(1200.0)
+
+
+def test_expected_running_time_to_a_normalised_target_from_histories():
+    # J* 100, warm start 200; target 1e-3 of the normalised gap, i.e. a cost <= 100.1
+    # trial 1: best 150 at 10, 100.05 at 50 (5e-4), 80 used: a success after 50
+    # trial 2: best 190 at 10, 120 at 90 (0.2), 100 used: a failure, charged its 100
+    hits = [
+        evaluations_to_target(np.array([10, 50]), np.array([150.0, 100.05]), 100.0, 200.0, 1e-3),
+        evaluations_to_target(np.array([10, 90]), np.array([190.0, 120.0]), 100.0, 200.0, 1e-3),
+    ]
+    assert hits[0] == 50 and math.isnan(hits[1])
+    assert expected_running_time(np.array(hits), np.array([80.0, 100.0])) == pytest.approx(150.0)
 
 
 def test_runtime_ecdf_counts_trial_target_pairs():
     # 2 trials x 2 targets: reached at 10, 50, 30 evaluations and once never
     hits = np.array([[10.0, 50.0], [30.0, math.nan]])
     np.testing.assert_allclose(runtime_ecdf(hits, np.array([5, 10, 40, 100])), [0, 0.25, 0.5, 0.75])
+    # the second trial weighted 3 times the first: pairs 10, 50 weigh 1, pairs 30, never 3
+    weighted = runtime_ecdf(hits, np.array([5, 10, 40, 100]), np.array([1.0, 3.0]))
+    np.testing.assert_allclose(weighted, [0, 1 / 8, 4 / 8, 5 / 8])
 
 
 def test_performance_profile_by_hand():
@@ -65,3 +125,170 @@ def test_shifted_geometric_mean_charges_failures():
     failed = np.array([False, True])
     value = shifted_geometric_mean(np.array([1.0, 7.0]), 1.0, failed, charge=15.0)
     assert value == pytest.approx(math.sqrt(32) - 1)
+    # weights 3 and 1: exp((3 log 2 + log 8) / 4) - 1 = 2^(6/4) - 1
+    weighted = shifted_geometric_mean(np.array([1.0, 7.0]), 1.0, weights=np.array([3.0, 1.0]))
+    assert weighted == pytest.approx(2**1.5 - 1)
+
+
+# --- the score report's tables ----------------------------------------------------------------
+
+
+def trial(problem, j_star, warm, fun, *, optimizer="A", run="r1", seed=0, nfev=1000, **extra):
+    """One score row as ``execute_score`` writes it, with the gaps computed from the costs."""
+    degenerate = extra.pop("degenerate", False)
+    gap = math.nan if degenerate else float(normalised_gap(fun, j_star, warm))
+    row = {
+        "run_key": run,
+        "optimizer": optimizer,
+        "budget": "default",
+        "seed": seed,
+        "library": "v2",
+        "run_split": "test",
+        "instance": int(problem[1:]),
+        "content_hash": problem,
+        "phase": "steady",
+        "degenerate": degenerate,
+        "j_star": j_star,
+        "warm_cost": warm,
+        "fun": fun,
+        "gap": float(relative_gap(fun, j_star)),
+        "normalised_gap": gap,
+        "nfev": nfev,
+        "seconds": 0.01,
+        **{target_column(t): math.nan for t in TARGETS},
+        "score_format": SCORE_FORMAT,
+    }
+    row.update(extra)
+    return row
+
+
+def toy_scores() -> pd.DataFrame:
+    """One optimiser on three problems, the second solved twice (by a second run over an
+    overlapping split), and two degenerate problems."""
+    hit = target_column(1e-3)
+    return pd.DataFrame(
+        [
+            # normalised gap 5e-3, relative 5e-3
+            trial("h1", 100.0, 200.0, 100.5, phase="start-up"),
+            # normalised and relative 5e-5, then 2e-4; reaches 1e-3 after 300 and 600
+            trial("h2", 10.0, 20.0, 10.0005, phase="transient", **{hit: 300.0}),
+            trial("h2", 10.0, 20.0, 10.002, run="r2", phase="transient", **{hit: 600.0}),
+            # normalised and relative 0.5, 400 evaluations used
+            trial("h3", 1.0, 2.0, 1.5, nfev=400),
+            # degenerate: far off (|f - J*| about 0.5) and at its warm start (|f - J*| 1e-9)
+            trial("h4", 1e-9, 1e-9, 0.5, degenerate=True),
+            trial("h5", 2e-9, 3e-9, 3e-9, degenerate=True),
+        ]
+    )
+
+
+def test_headline_counts_each_problem_once_and_leaves_out_the_degenerate():
+    summary = score_report.summary_table(toy_scores())
+    (row,) = summary.to_dict("records")
+    assert (row["instances"], row["trials"], row["rank"]) == (3, 4, 1)
+    # per problem: 5e-3, mean(5e-5, 2e-4) = 1.25e-4, 0.5 -> median 5e-3 (the four trials
+    # without averaging would give (2e-4 + 5e-3) / 2; with h4, 0.5 and more)
+    assert row["norm_gap_median"] == pytest.approx(5e-3)
+    assert row["gap_median"] == pytest.approx(5e-3)
+    # success, each problem weighted once (h2's two trials 1/2 each):
+    # 1e-2: h1, h2 twice -> (1 + 1 + 0) / 3;  1e-3: h2 twice -> 1/3;  1e-4: h2 once -> 1/6
+    assert row["success_norm_1e-02"] == pytest.approx(2 / 3)
+    assert row["success_norm_1e-03"] == pytest.approx(1 / 3)
+    assert row["success_norm_1e-04"] == pytest.approx(1 / 6)
+    # median evaluations over problems: 1000, 1000, 400
+    assert row["nfev_median"] == 1000
+
+
+def test_ert_to_a_normalised_target_weights_each_problem_once():
+    ert = score_report.ert_table(toy_scores())
+    row = ert[ert["target_norm_gap"] == 1e-3].iloc[0]
+    # h1 fails (1000 used, weight 1), h2 hits after 300 and 600 (weight 1/2 each), h3 fails
+    # (400 used, weight 1): (1000 + 150 + 300 + 400) / (1/2 + 1/2) = 1850
+    assert row["successes"] == 2 and row["trials"] == 4
+    assert row["ert_evaluations"] == pytest.approx(1850.0)
+    assert (ert.loc[ert["target_norm_gap"] != 1e-3, "ert_evaluations"] == math.inf).all()
+
+
+def test_degenerate_stratum_by_hand():
+    (row,) = score_report.degenerate_table(toy_scores()).to_dict("records")
+    assert (row["instances"], row["trials"]) == (2, 2)
+    # h4 ends above its warm start, h5 at it
+    assert row["warm_or_better_share"] == pytest.approx(0.5)
+    # |f - J*|: 0.5 - 1e-9 and 1e-9 -> median 0.25
+    assert row["abs_error_median"] == pytest.approx(0.25)
+
+
+def test_phase_medians_by_hand():
+    phases = score_report.phase_table(toy_scores()).set_index("phase")
+    assert phases.loc["start-up", "norm_gap_median"] == pytest.approx(5e-3)
+    assert phases.loc["transient", "norm_gap_median"] == pytest.approx(1.25e-4)
+    assert phases.loc["steady", "norm_gap_median"] == pytest.approx(0.5)
+    assert phases["instances"].tolist() == [1, 1, 1]  # h3 only: h4, h5 are degenerate
+
+
+def test_repeated_problems_are_counted_and_said():
+    scores = toy_scores()
+    assert score_report.repeated_problems(scores) == (0, 1)  # h2 of seed 0 in runs r1, r2
+    again = pd.concat([scores, scores.iloc[[0]]], ignore_index=True)  # h1 twice in run r1
+    assert score_report.repeated_problems(again) == (1, 1)
+    markdown = score_report.to_markdown(
+        score_report.summary_table(again),
+        score_report.degenerate_table(again),
+        score_report.phase_table(again),
+        score_report.paired_table(again),
+        library="v2 (split test)",
+        notes=score_report._notes(again),
+    )
+    assert "1 score rows repeat the problem (content hash)" in markdown
+    assert "1 (optimizer, budget, seed, problem) were solved by more than one run" in markdown
+    assert "**Ranked by the median normalised gap**" in markdown
+
+
+def paired_scores() -> pd.DataFrame:
+    """12 problems: pso below modified-bso on every one, pso-warm between them, and a warm
+    variant without its uniform-start counterpart."""
+    rows = []
+    for k in range(12):
+        for optimizer, gap in (
+            ("modified-bso", 0.5 + 0.01 * k),
+            ("pso", 0.1 + 0.01 * k),
+            ("pso-warm", 0.3 + 0.01 * k),
+            ("de-warm", 0.5 + 0.01 * k),  # equal to modified-bso: no evidence either way
+        ):
+            rows.append(trial(f"h{k}", 1.0, 2.0, 1.0 + gap, optimizer=optimizer, run=optimizer))
+    return pd.DataFrame(rows)
+
+
+def test_paired_table_by_hand():
+    paired = score_report.paired_table(paired_scores())
+    table = paired.set_index(["x", "y"])
+    assert list(table.index) == [
+        ("de-warm", "modified-bso"),
+        ("pso", "modified-bso"),
+        ("pso-warm", "modified-bso"),
+        ("pso-warm", "pso"),
+    ]
+    assert (paired["pairs"] == 12).all()
+    # every difference of one sign: W = 0, exact two-sided p = 2 * 2^-12 = 2^-11
+    for pair in [("pso", "modified-bso"), ("pso-warm", "modified-bso"), ("pso-warm", "pso")]:
+        assert table.loc[pair, "p"] == pytest.approx(2**-11)
+    # every pso value below every modified-bso value: A12 = 0; pso-warm above pso: A12 = 1
+    assert table.loc[("pso", "modified-bso"), "a12"] == 0.0
+    assert table.loc[("pso-warm", "pso"), "a12"] == 1.0
+    assert table.loc[("pso", "modified-bso"), "x_lower"] == 12
+    assert table.loc[("pso", "modified-bso"), "reading"].startswith("favours pso:")
+    assert table.loc[("pso-warm", "pso"), "reading"].startswith("favours pso:")
+    # de-warm equals modified-bso on every problem: p 1, A12 0.5, 12 ties
+    equal = table.loc[("de-warm", "modified-bso")]
+    assert (equal["p"], equal["a12"], equal["ties"]) == (1.0, 0.5, 12)
+    assert equal["reading"].startswith("no difference")
+    # Holm within each kind at the budget: three against modified-bso, p 2^-11, 2^-11, 1
+    # -> 3 * 2^-11, max(2 * 2^-11, 3 * 2^-11) = 3 * 2^-11, 1; the warm pair alone keeps 2^-11
+    assert table.loc[("pso", "modified-bso"), "p_holm"] == pytest.approx(3 * 2**-11)
+    assert table.loc[("pso-warm", "modified-bso"), "p_holm"] == pytest.approx(3 * 2**-11)
+    assert table.loc[("de-warm", "modified-bso"), "p_holm"] == 1.0
+    assert table.loc[("pso-warm", "pso"), "p_holm"] == pytest.approx(2**-11)
+    assert table.loc[("pso-warm", "pso"), "comparison"] == "warm start against uniform start"
+    # without modified-bso, only the warm pairs
+    alone = score_report.paired_table(paired_scores().query("optimizer != 'modified-bso'"))
+    assert list(zip(alone["x"], alone["y"], strict=True)) == [("pso-warm", "pso")]

@@ -17,11 +17,13 @@ The mapping:
   library index), as IOHprofiler pools the instances of a function, so IOHanalyzer's
   statistics run over every (instance, seed) trial, as ``formation-bench report`` does;
 - dimension: the length of the decision vector;
-- run: one solve, one instance with one seed (run attributes ``seed`` and ``j_star``, the
-  instance's best-known cost);
-- raw_y: the relative gap ``(cost - J*) / |J*|`` of the best cost so far, so the optimum is
-  0 on every instance (``ioh`` likewise logs ``y - f_opt``); a solve that beats ``J*``
-  gives a negative raw_y.
+- run: one solve, one instance with one seed (run attributes ``j_star``, the instance's
+  best-known cost, ``seed`` and ``warm_cost``, the cost of its warm start);
+- raw_y: the normalised gap ``(cost - J*) / (warm_cost - J*)`` of the best cost so far, the
+  share of the possible improvement left (the gap the report's targets use), so the optimum
+  is 0 on every instance (``ioh`` likewise logs ``y - f_opt``) and a target means the same
+  on every instance; a solve that beats ``J*`` gives a negative raw_y. Solves of degenerate
+  instances, where the normalised gap is not defined, are left out.
 
 A run's lines are the evaluations at which its best cost so far improved, then its last
 evaluation (as the logger ends a run). Values are written in full precision, where the
@@ -38,7 +40,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from formation_bench.benchmarks.analysis.scoring import relative_gap
+from formation_bench.benchmarks.analysis.scoring import TARGET_GAP, normalised_gap
+from formation_bench.benchmarks.experiments.errors import StoreError
+from formation_bench.benchmarks.experiments.score import check_score_format
 
 IOH_FORMAT_VERSION = "0.4.2"
 """Version of ``ioh`` whose logger layout is written, and written as the format version (the
@@ -47,7 +51,9 @@ on). The logger of 0.3.22 writes the same files but for that number. The lock in
 ``ioh``, and the layout test fails when the installed one writes another version."""
 SUITE = "formation-bench"
 HISTORY = ("improvement_nfev", "improvement_fun", "x")
-"""Score columns the export needs (stored from score format 2 on)."""
+"""Score columns of the improvement history the export needs (stored from score format 2 on;
+the warm start's cost and the degeneracy from format 3 on)."""
+RUN_ATTRIBUTES = ("j_star", "seed", "warm_cost")
 
 
 class ExportError(ValueError):
@@ -70,23 +76,27 @@ def function_of(library: str) -> tuple[int, str]:
 
 
 def run_lines(row: Any) -> list[tuple[int, float]]:
-    """A solve's ``(evaluations, raw_y)`` lines: its improvements, then its last evaluation."""
+    """A solve's ``(evaluations, raw_y)`` lines: its improvements, then its last evaluation;
+    raw_y the normalised gap of the best cost so far."""
+    improved = np.asarray(row.improvement_fun, dtype=np.float64)
     lines = list(
         zip(
             (int(n) for n in row.improvement_nfev),
-            relative_gap(np.asarray(row.improvement_fun, dtype=np.float64), row.j_star).tolist(),
+            normalised_gap(improved, row.j_star, row.warm_cost).tolist(),
             strict=True,
         )
     )
     if not lines or int(row.nfev) > lines[-1][0]:
-        lines.append((int(row.nfev), float(row.gap)))
+        lines.append((int(row.nfev), float(row.normalised_gap)))
     return lines
 
 
 def export_ioh(scores: pd.DataFrame, out: Path) -> dict[str, int]:
     """Write ``scores`` (:func:`~formation_bench.benchmarks.experiments.score.load_scores`)
-    into the folder ``out``; returns the number of runs per algorithm."""
+    into the folder ``out``, but for the solves of degenerate instances (no normalised gap);
+    returns the number of runs per algorithm."""
     _check_history(scores)
+    scores = scores[~scores["degenerate"].astype(bool)]
     written: dict[str, int] = {}
     folders: set[str] = set()
     for (optimizer, budget), rows in scores.groupby(["optimizer", "budget"], sort=True):
@@ -110,8 +120,9 @@ def _write_function(folder: Path, algorithm: str, library: str, rows: pd.DataFra
             lines = run_lines(row)
             text.append("evaluations raw_y\n")
             text.extend(f"{n} {y!r}\n" for n, y in lines)
-            best_evals = next((n for n, y in lines if y <= row.gap), int(row.nfev))
-            best = {"evals": best_evals, "y": float(row.gap), "x": [float(v) for v in row.x]}
+            final = float(row.normalised_gap)
+            best_evals = next((n for n, y in lines if y <= final), int(row.nfev))
+            best = {"evals": best_evals, "y": final, "x": [float(v) for v in row.x]}
             meta.append(
                 {
                     "instance": int(row.instance),
@@ -119,6 +130,7 @@ def _write_function(folder: Path, algorithm: str, library: str, rows: pd.DataFra
                     "best": best,
                     "j_star": float(row.j_star),
                     "seed": int(row.seed),
+                    "warm_cost": float(row.warm_cost),
                 }
             )
         (folder / path).parent.mkdir(parents=True, exist_ok=True)
@@ -138,9 +150,9 @@ def _write_function(folder: Path, algorithm: str, library: str, rows: pd.DataFra
             {"budget": str(first.budget)},
             {"library": library},
             {"optimizer_name": str(first.optimizer_name)},
-            {"raw_y": "relative gap (cost - J*) / |J*|"},
+            {"raw_y": TARGET_GAP},
         ],
-        "run_attributes": ["j_star", "seed"],
+        "run_attributes": list(RUN_ATTRIBUTES),
         "attributes": ["evaluations", "raw_y"],
         "scenarios": scenarios,
     }
@@ -172,6 +184,10 @@ def _meta_text(info: dict[str, Any]) -> str:
 
 
 def _check_history(scores: pd.DataFrame) -> None:
+    try:
+        check_score_format(scores, "an export")
+    except StoreError as err:
+        raise ExportError(str(err)) from None
     missing = [c for c in HISTORY if c not in scores.columns]
     lacking = scores if missing else scores[scores[list(HISTORY)].isna().any(axis=1)]
     if len(lacking):

@@ -17,7 +17,9 @@ Files written to the report folder: ``report.md``, ``summary.csv``,
 ``figures/*.png`` (metric distributions, solve-time ECDFs, trigger counts). Results that
 vary the number of UAVs or the graph, disturb the runs or set obstacles and penalties get the
 sections of :mod:`~formation_bench.benchmarks.analysis.suite_sections` too (``swarm.md``,
-``robustness.md``, ``obstacles.md``, their CSV files and figures).
+``robustness.md``, ``obstacles.md``, their CSV files and figures). Results holding a variant
+and the configuration it varies (``pso-warm`` and ``pso``) get ``variant_pairs.md`` and
+``variant_pairs.csv`` (:mod:`~formation_bench.benchmarks.analysis.variant_pairs`).
 """
 
 from __future__ import annotations
@@ -477,6 +479,14 @@ def make_report(
     suite_sections = write_sections(results, folder, figures=figures)
     if suite_sections:
         markdown += "\n" + suite_sections + "\n"
+    from formation_bench.benchmarks.analysis import variant_pairs
+
+    pairs = variant_pairs.pair_table(results)
+    if not pairs.empty:
+        pairs_markdown = variant_pairs.to_markdown(pairs)
+        (folder / "variant_pairs.md").write_text(pairs_markdown)
+        pairs.to_csv(folder / "variant_pairs.csv", index=False)
+        markdown += "\n" + pairs_markdown
     markdown += repeat_section(results)
     (folder / "report.md").write_text(markdown)
     for name, reason in NOT_APPLICABLE.items():

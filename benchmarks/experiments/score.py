@@ -1,8 +1,12 @@
 """Scoring an optimiser on the instance library: every instance solved, stored per run.
 
 A *score run* is one optimiser configuration at one budget with one seed, solving every
-instance of the library from its warm start. Its rows (one per instance: the final cost, the
-gap to ``J*``, evaluations, iterations, wall time, the evaluations to each target gap, the
+instance of one split of the library (``test``, ``validation`` or ``all``; a library without
+splits, ``v1``, has ``all`` only) from its warm start, degenerate instances included. Its
+rows (one per instance: where it comes from, its content hash, family, phase, split, whether
+it is degenerate, ``J*`` and the warm start's cost; the final cost, the relative gap
+``(f - J*) / J*`` and the normalised gap ``(f - J*) / (f_warm - J*)``, evaluations,
+iterations, wall time, the evaluations to each target of the normalised gap, the
 improvements of the best cost so far and the point returned) are stored as
 ``DIR/score/<key>.parquet``, written atomically when the run is complete and sealed like every
 file of the store (page checksums and a SHA-256 of the whole file naming the run's key; see
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -29,14 +34,24 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from formation_bench.benchmarks.analysis.scoring import TARGETS, evaluations_to_target
+from formation_bench.benchmarks.analysis.scoring import (
+    TARGETS,
+    evaluations_to_target,
+    normalised_gap,
+)
 from formation_bench.benchmarks.experiments.errors import IntegrityError, StoreError
 from formation_bench.benchmarks.experiments.seal import (
     read_table,
     sealed_parquet,
 )
 from formation_bench.benchmarks.experiments.store import intact_frames, to_stderr
-from formation_bench.benchmarks.instances.library import Library, shipped
+from formation_bench.benchmarks.instances.library import (
+    Instance,
+    Library,
+    LibraryError,
+    load_shipped,
+    shipped,
+)
 from formation_bench.benchmarks.outputs import atomic_write_bytes
 from formation_bench.benchmarks.spec import (
     budget_label,
@@ -50,15 +65,48 @@ from formation_bench.plugins import load_plugins
 
 SCORE = "score"
 """Subfolder of a results folder that holds score runs."""
-SCORE_FORMAT = 2
+SCORE_FORMAT = 3
 """Layout version of the score rows (column ``score_format``); bumped when the columns
 change, so a run stored in another layout is redone on resume. 2 added the improvement
-history and the point returned."""
+history and the point returned; 3 the run's split (``run_split``), the instance's content
+hash, family, phase, split, degeneracy and warm-start cost, the normalised gap, and the
+evaluations to targets of the normalised gap (``evals_to_norm_*``, where 2 had targets of the
+relative gap)."""
+SPLITS = ("test", "validation", "all")
+"""Splits a score run can solve: a split of the library, or ``all``, every instance."""
+DEFAULT_SPLIT = "test"
+"""The split scored when none is named, on a library with splits (``all`` on one without)."""
+
+
+class ScoreError(ValueError):
+    """A score run that cannot be made as asked (one line, naming the option)."""
 
 
 def target_column(target: float) -> str:
-    """Column of the evaluations to reach ``target`` (e.g. ``evals_to_1e-03``)."""
-    return f"evals_to_{target:.0e}"
+    """Column of the evaluations to reach a normalised gap of ``target`` (e.g.
+    ``evals_to_norm_1e-03``)."""
+    return f"evals_to_norm_{target:.0e}"
+
+
+def resolved_split(library: Library, split: str | None) -> str:
+    """``split`` checked against ``library`` (None: :data:`DEFAULT_SPLIT`, or ``all`` on a
+    library without splits); raises :class:`ScoreError` naming ``--split``."""
+    allowed = SPLITS if library.has_splits else ("all",)
+    if split is None:
+        return DEFAULT_SPLIT if library.has_splits else "all"
+    if split not in allowed:
+        without = "" if library.has_splits else " (it has no splits)"
+        raise ScoreError(
+            f"--split: {split!r} is not a split of library {library.version}{without}; "
+            f"allowed: {', '.join(allowed)}"
+        )
+    return split
+
+
+def split_instances(library: Library, split: str) -> list[Instance]:
+    """The instances a score run over ``split`` solves, degenerate ones included."""
+    resolved_split(library, split)
+    return library.instances(None if split == "all" else split, degenerate=None)
 
 
 @dataclass(frozen=True)
@@ -75,6 +123,8 @@ class ScoreRun:
     deadline_ms: float | None
     seed: int
     library_version: str
+    split: str = "all"
+    """The split solved (:data:`SPLITS`); ``all``: every instance."""
     plugins: tuple[str, ...] = ()
 
     @property
@@ -82,7 +132,10 @@ class ScoreRun:
         return budget_label(self.max_evaluations, self.max_iterations, self.deadline_ms)
 
     def identity(self) -> dict[str, Any]:
-        return {
+        """What the run's key and random numbers derive from. The split is part of it, but
+        for ``all``, which leaves it out, so a run over a whole library keeps the key (and
+        random numbers) it had before runs had splits, and is redone in place on resume."""
+        identity = {
             "optimizer": self.optimizer_name,
             "optimizer_overrides": json.loads(self.optimizer_overrides),
             "max_evaluations": self.max_evaluations,
@@ -91,6 +144,9 @@ class ScoreRun:
             "seed": self.seed,
             "library": self.library_version,
         }
+        if self.split != "all":
+            identity["split"] = self.split
+        return identity
 
     @property
     def key(self) -> str:
@@ -122,10 +178,13 @@ def score_runs(
     *,
     deadline_ms: float | None = None,
     library: Library | None = None,
+    split: str | None = None,
     plugins: tuple[str, ...] = (),
 ) -> list[ScoreRun]:
-    """The score runs of one optimiser configuration at every budget and seed."""
+    """The score runs of one optimiser configuration at every budget and seed, over ``split``
+    of ``library`` (by default the shipped library and :func:`resolved_split`'s default)."""
     library = shipped() if library is None else library
+    split = resolved_split(library, split)
     configured = get_optimizer(optimizer_name, **overrides)
     label, changed = labelled(optimizer_name, get_optimizer(optimizer_name), configured)
     return [
@@ -138,6 +197,7 @@ def score_runs(
             deadline_ms=deadline_ms,
             seed=seed,
             library_version=library.version,
+            split=split,
             plugins=plugins,
         )
         for max_evaluations, max_iterations in budgets
@@ -145,17 +205,32 @@ def score_runs(
     ]
 
 
+def run_library(run: ScoreRun, library: Library | None = None) -> Library:
+    """The library ``run`` solves: ``library`` if given (it must be the run's version), else
+    the shipped one of the run's version."""
+    if library is None:
+        try:
+            return load_shipped(run.library_version)
+        except LibraryError as err:
+            raise ScoreError(f"--library: {err}") from None
+    if library.version != run.library_version:
+        raise ScoreError(
+            f"a score run on library {run.library_version} given library {library.version}"
+        )
+    return library
+
+
 def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame:
-    """Solve every instance once; one row per instance."""
+    """Solve every instance of the run's split once; one row per instance."""
     from threadpoolctl import threadpool_limits
 
     load_plugins(run.plugins)
-    library = shipped() if library is None else library
+    library = run_library(run, library)
     optimizer = run.optimizer()
     budget = run.budget(optimizer)
     rows = []
     with threadpool_limits(limits=1):
-        for instance in library:
+        for instance in split_instances(library, run.split):
             problem = instance.problem
             rng = np.random.default_rng(np.random.SeedSequence([run.entropy, instance.index]))
             start = time.perf_counter()
@@ -167,19 +242,34 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
             rows.append(
                 {
                     "instance": instance.index,
+                    "content_hash": instance.content_hash,
+                    "family": instance.family,
+                    "phase": instance.phase,
+                    "split": instance.split,
+                    "degenerate": bool(instance.degenerate),
                     "scenario": instance.scenario_name,
                     "trigger": instance.trigger,
                     "step": instance.step,
                     "j_star": instance.j_star,
+                    "warm_cost": float(instance.warm_cost),
                     "fun": float(result.fun),
                     "gap": float(instance.gap(result.fun)),
+                    "normalised_gap": _normalised(instance, result.fun),
                     "nfev": int(result.nfev),
                     "nit": int(result.nit),
                     "seconds": seconds,
                     "success": bool(result.success),
                     **{
-                        target_column(t): evaluations_to_target(
-                            np.asarray(history_nfev), np.asarray(history_fun), instance.j_star, t
+                        target_column(t): (
+                            math.nan
+                            if instance.degenerate
+                            else evaluations_to_target(
+                                np.asarray(history_nfev),
+                                np.asarray(history_fun),
+                                instance.j_star,
+                                instance.warm_cost,
+                                t,
+                            )
                         )
                         for t in TARGETS
                     },
@@ -190,6 +280,8 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
                 }
             )
     frame = pd.DataFrame(rows)
+    if frame.empty:
+        raise ScoreError(f"--split: library {run.library_version} has no {run.split} instances")
     frame.insert(0, "run_key", run.key)
     frame.insert(1, "optimizer", run.optimizer_label)
     frame.insert(2, "optimizer_name", run.optimizer_name)
@@ -199,7 +291,15 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
     frame.insert(6, "deadline_ms", float("nan") if run.deadline_ms is None else run.deadline_ms)
     frame.insert(7, "seed", run.seed)
     frame.insert(8, "library", run.library_version)
+    frame.insert(9, "run_split", run.split)
     return frame
+
+
+def _normalised(instance: Instance, cost: float) -> float:
+    """The normalised gap of ``cost`` on ``instance``: NaN on a degenerate one."""
+    if instance.degenerate:
+        return math.nan
+    return float(normalised_gap(cost, instance.j_star, instance.warm_cost))
 
 
 def improvements(history_nfev: np.ndarray, history_fun: np.ndarray) -> tuple[list, list]:
@@ -259,6 +359,22 @@ def _execute_pair(run: ScoreRun, library: Library | None) -> tuple[ScoreRun, pd.
     return run, execute_score(run, library)
 
 
+def check_score_format(scores: pd.DataFrame, doing: str) -> None:
+    """Raise :class:`StoreError` naming the runs of ``scores`` stored in another
+    :data:`SCORE_FORMAT` (which lack columns ``doing`` needs), with the fix."""
+    stored = scores["score_format"] if "score_format" in scores else pd.Series(np.nan, scores.index)
+    old = scores[stored.fillna(0).astype(int) != SCORE_FORMAT]
+    if old.empty:
+        return
+    runs = old.drop_duplicates("run_key")
+    named = ", ".join(f"{r.optimizer} / {r.budget} / seed {r.seed}" for r in runs.itertuples())
+    raise StoreError(
+        f"{len(runs)} score run(s) were stored in an older score format (before "
+        f"{SCORE_FORMAT}: no normalised gap), which {doing} cannot use: {named}; run the same "
+        "'formation-bench score' commands on the folder again to redo them"
+    )
+
+
 def load_scores(out: Path | str, *, notice: Callable[[str], None] = to_stderr) -> pd.DataFrame:
     """Every intact stored score row of ``out``, one row per (run, instance).
 
@@ -280,4 +396,6 @@ def load_scores(out: Path | str, *, notice: Callable[[str], None] = to_stderr) -
     if not frames:
         raise StoreError(f"{out} holds no score runs (no intact {SCORE}/*.parquet)")
     frame = pd.concat(frames, ignore_index=True)
-    return frame.sort_values(["optimizer", "budget", "seed", "instance"], ignore_index=True)
+    return frame.sort_values(
+        ["optimizer", "budget", "seed", "library", "instance"], ignore_index=True
+    )
