@@ -632,11 +632,6 @@ def _take_over_interrupts() -> Any:
     if threading.current_thread() is not threading.main_thread():
         return None
     previous = signal.getsignal(signal.SIGINT)
-    if previous is _interrupt_once:
-        # a command started inside another one's handling (a caller that runs main twice):
-        # its first press is its own, whatever the earlier command saw
-        _first_press.clear()
-        return previous
     if previous in (signal.default_int_handler, command_start.interrupted_while_starting):
         _first_press.clear()
         signal.signal(signal.SIGINT, _interrupt_once)

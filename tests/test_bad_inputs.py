@@ -408,7 +408,18 @@ def test_ctrl_c_while_the_command_imports_its_modules_exits_130_in_one_line():
     assert done.stderr.strip() == "formation-bench: interrupted"
 
 
-def test_ctrl_c_while_a_plugin_loads_and_again_while_it_is_reported(tmp_path, monkeypatch, capsys):
+@pytest.fixture
+def python_sigint():
+    """Python's own Ctrl-C handler during the test, as in a shell: a test runner started in
+    the background ignores SIGINT, and a command started so rightly keeps ignoring it."""
+    original = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, original)
+
+
+def test_ctrl_c_while_a_plugin_loads_and_again_while_it_is_reported(
+    tmp_path, monkeypatch, capsys, python_sigint
+):
     from formation_bench.benchmarks import cli
 
     plugin = tmp_path / "slow_plugin.py"
