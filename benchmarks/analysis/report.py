@@ -53,7 +53,7 @@ HEADLINE_METRICS = (
 )
 """Metrics printed on the terminal and plotted; the files hold every metric."""
 
-SIGNIFICANCE = 0.05
+SIGNIFICANCE = stats.SIGNIFICANCE
 
 NOT_APPLICABLE: dict[str, str] = {
     "summary": "no results: the results folder holds no metric values",

@@ -50,6 +50,7 @@ from formation_bench.benchmarks.analysis.scoring import (
     shifted_geometric_mean,
     success_rate,
 )
+from formation_bench.benchmarks.analysis.variant_pairs import variant_pairs
 from formation_bench.benchmarks.experiments.score import check_score_format, target_column
 from formation_bench.benchmarks.instances.library import PHASES
 
@@ -61,12 +62,8 @@ PROFILE_TAUS = np.array([1, 1.5, 2, 3, 5, 10, 20, 50, 100], dtype=float)
 """Factors of the performance profile."""
 BASELINE = "modified-bso"
 """The optimiser every other one is compared with, when the scores hold it."""
-VARIANT_SUFFIX = "-warm"
-"""``X-warm`` (part of its population started around the warm start) is compared with ``X``
-(a uniform start)."""
 WARM_TOLERANCE = 1e-9
 """Relative: a final cost within this of the warm start's cost counts as returning it."""
-SIGNIFICANCE = 0.05
 
 GROUP = ["optimizer", "budget"]
 PROBLEM = [*GROUP, "content_hash"]
@@ -242,11 +239,7 @@ def comparisons(optimizers: list[str]) -> list[tuple[str, str, str]]:
     found = []
     if BASELINE in present:
         found += [(f"against {BASELINE}", x, BASELINE) for x in optimizers if x != BASELINE]
-    found += [
-        ("warm start against uniform start", x, x[: -len(VARIANT_SUFFIX)])
-        for x in optimizers
-        if x.endswith(VARIANT_SUFFIX) and x[: -len(VARIANT_SUFFIX)] in present
-    ]
+    found += [("warm start against uniform start", x, y) for x, y in variant_pairs(optimizers)]
     return found
 
 
@@ -277,32 +270,21 @@ def paired_table(scores: pd.DataFrame) -> pd.DataFrame:
         found = []
         for kind, x_name, y_name in comparisons(sorted(table.columns)):
             pair = table[[x_name, y_name]].dropna()
-            x, y = pair[x_name].to_numpy(), pair[y_name].to_numpy()
-            _, p = stats.wilcoxon_paired(x, y)
-            a12 = stats.a12(x, y)
+            compared = stats.paired_comparison(pair[x_name], pair[y_name])
             found.append(
                 {
                     "budget": budget,
                     "comparison": kind,
                     "x": x_name,
                     "y": y_name,
-                    "pairs": len(pair),
-                    "x_norm_gap_median": float(np.median(x)) if len(x) else math.nan,
-                    "y_norm_gap_median": float(np.median(y)) if len(y) else math.nan,
-                    "median_difference": float(np.median(x - y)) if len(x) else math.nan,
-                    "x_lower": int((x < y).sum()),
-                    "x_higher": int((x > y).sum()),
-                    "ties": int((x == y).sum()),
-                    "p": p,
-                    "a12": a12,
-                    "reading": a12_reading(x_name, y_name, a12),
+                    "x_norm_gap_median": compared.pop("x_median"),
+                    "y_norm_gap_median": compared.pop("y_median"),
+                    **compared,
+                    "reading": a12_reading(x_name, y_name, compared["a12"]),
                 }
             )
         for kind in dict.fromkeys(r["comparison"] for r in found):
-            family = [r for r in found if r["comparison"] == kind]
-            for row, p_holm in zip(family, stats.holm([r["p"] for r in family]), strict=True):
-                row["p_holm"] = float(p_holm)
-                row["significant"] = bool(p_holm < SIGNIFICANCE)
+            stats.holm_family([r for r in found if r["comparison"] == kind])
         rows += found
     columns = [
         "budget", "comparison", "x", "y", "pairs", "x_norm_gap_median", "y_norm_gap_median",

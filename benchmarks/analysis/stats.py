@@ -28,6 +28,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+SIGNIFICANCE = 0.05
+"""Level of every test the reports mark (after Holm's adjustment)."""
 BOOTSTRAP_RESAMPLES = 2000
 CONFIDENCE = 0.95
 
@@ -97,6 +99,34 @@ def wilcoxon_paired(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
         warnings.simplefilter("ignore", UserWarning)  # "sample size too small" for exact p
         result = stats.wilcoxon(x, y, zero_method="wilcox", alternative="two-sided")
     return float(result.statistic), float(result.pvalue)
+
+
+def paired_comparison(x: np.ndarray, y: np.ndarray) -> dict[str, float | int]:
+    """Two paired samples side by side: their number, medians, the median of ``x - y``, how
+    often ``x`` is lower, higher or tied, the two-sided Wilcoxon p (:func:`wilcoxon_paired`)
+    and A12 = P(x > y) (:func:`a12`)."""
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    _, p = wilcoxon_paired(x, y)
+    some = x.size > 0
+    return {
+        "pairs": int(x.size),
+        "x_median": float(np.median(x)) if some else math.nan,
+        "y_median": float(np.median(y)) if some else math.nan,
+        "median_difference": float(np.median(x - y)) if some else math.nan,
+        "x_lower": int((x < y).sum()),
+        "x_higher": int((x > y).sum()),
+        "ties": int((x == y).sum()),
+        "p": p,
+        "a12": a12(x, y),
+    }
+
+
+def holm_family(rows: list[dict]) -> None:
+    """Add ``p_holm`` (Holm over the rows' ``p``) and ``significant`` (``p_holm`` below
+    :data:`SIGNIFICANCE`) to each row of one family of tests."""
+    for row, p_holm in zip(rows, holm([r["p"] for r in rows]), strict=True):
+        row["p_holm"] = float(p_holm)
+        row["significant"] = bool(p_holm < SIGNIFICANCE)
 
 
 def holm(pvalues: list[float] | np.ndarray) -> np.ndarray:

@@ -11,17 +11,10 @@ counterpart of the score report's paired table.
 
 from __future__ import annotations
 
-import numpy as np
 import pandas as pd
 
 from formation_bench.benchmarks.analysis import stats
-from formation_bench.benchmarks.analysis.report import (
-    HEADLINE_METRICS,
-    SIGNIFICANCE,
-    _num,
-    _p,
-    prepare,
-)
+from formation_bench.benchmarks.analysis.report import HEADLINE_METRICS, _num, _p, prepare
 
 VARIANT_SUFFIXES = ("-warm",)
 """Name endings of the variants compared with the configuration they vary."""
@@ -54,25 +47,22 @@ def pair_table(results: pd.DataFrame, metrics: tuple[str, ...] = HEADLINE_METRIC
             found = []
             for variant, base in pairs:
                 pair = table[[variant, base]].dropna()
-                x, y = pair[variant].to_numpy(), pair[base].to_numpy()
-                _, p = stats.wilcoxon_paired(x, y)
+                compared = stats.paired_comparison(pair[variant], pair[base])
                 found.append(
                     {
                         **dict(zip(BLOCK, block_values, strict=True)),
                         "metric": metric,
                         "variant": variant,
                         "base": base,
-                        "n_pairs": len(pair),
-                        "variant_median": float(np.median(x)) if len(x) else np.nan,
-                        "base_median": float(np.median(y)) if len(y) else np.nan,
-                        "median_difference": float(np.median(x - y)) if len(x) else np.nan,
-                        "p": p,
-                        "a12": stats.a12(x, y),
+                        "n_pairs": compared.pop("pairs"),
+                        "variant_median": compared.pop("x_median"),
+                        "base_median": compared.pop("y_median"),
+                        "variant_lower": compared.pop("x_lower"),
+                        "variant_higher": compared.pop("x_higher"),
+                        **compared,
                     }
                 )
-            for row, p_holm in zip(found, stats.holm([r["p"] for r in found]), strict=True):
-                row["p_holm"] = p_holm
-                row["significant"] = bool(p_holm < SIGNIFICANCE)
+            stats.holm_family(found)
             rows.extend(found)
     return pd.DataFrame(rows)
 
