@@ -21,7 +21,7 @@
 # trigger trade-off, and the scenarios beyond the paper: swarms on communication
 # graphs, disturbances and faults, obstacles. It computes no metric itself: the
 # metrics come from the results store, and the statistics from
-# `formation_bench.benchmarks.analysis.report` (and its suite sections). The sentence
+# `formation_bench.analysis.report` (and its suite sections). The sentence
 # under each figure is computed from the data.
 #
 # Produce the results (about 15 minutes on 2 cores for the first four suites, and
@@ -49,9 +49,9 @@ import matplotlib.pyplot as plt
 import pandas as pd
 from IPython.display import Markdown, display
 
-from formation_bench.benchmarks.analysis import figures
-from formation_bench.benchmarks.analysis import notebook as analysis
-from formation_bench.benchmarks.analysis.figures import (
+from formation_bench.analysis import figures
+from formation_bench.analysis import notebook as analysis
+from formation_bench.analysis.figures import (
     distribution_figure,
     metric_vs_level_figure,
     metric_vs_n_figure,
@@ -59,7 +59,7 @@ from formation_bench.benchmarks.analysis.figures import (
     solve_time_ecdf_figure,
     solves_figure,
 )
-from formation_bench.benchmarks.analysis.report import analyse
+from formation_bench.analysis.report import analyse
 from formation_bench.mpc.metrics import pair_names
 from formation_bench.mpc.scenario import get_scenario
 

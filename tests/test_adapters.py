@@ -17,7 +17,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from formation_bench.benchmarks.instances.library import shipped
+from formation_bench.instances.library import shipped
 from formation_bench.optimizers import OPTIMIZERS, Bounds, Budget, get_optimizer
 from formation_bench.optimizers.adapters import ADAPTERS
 from formation_bench.optimizers.adapters.common import (
@@ -221,7 +221,7 @@ def test_without_the_libraries_the_names_are_unregistered_and_explained() -> Non
         "    get_optimizer('ng-ngopt')\n"
         "except KeyError as err:\n"
         "    print(err.args[0])\n"
-        "from formation_bench.benchmarks.cli import main\n"
+        "from formation_bench.cli.main import main\n"
         "main(['list'])\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)

@@ -12,7 +12,15 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-HARNESS = ("formation_bench.mpc", "formation_bench.benchmarks")
+PACKAGE = ROOT / "src" / "formation_bench"
+HARNESS = (
+    "formation_bench.mpc",
+    "formation_bench.pipeline",
+    "formation_bench.instances",
+    "formation_bench.experiments",
+    "formation_bench.analysis",
+    "formation_bench.cli",
+)
 
 
 def imported_modules(path: Path, package: str) -> set[str]:
@@ -32,19 +40,21 @@ def imported_modules(path: Path, package: str) -> set[str]:
     return found
 
 
-@pytest.mark.parametrize("path", sorted((ROOT / "optimizers").rglob("*.py")), ids=lambda p: p.name)
+OPTIMIZER_FILES = sorted((PACKAGE / "optimizers").rglob("*.py"))
+
+
+@pytest.mark.parametrize("path", OPTIMIZER_FILES, ids=lambda p: p.name)
 def test_optimizers_import_nothing_of_the_harness(path):
     imports = imported_modules(path, "formation_bench.optimizers")
-    offending = sorted(m for m in imports if m.startswith(HARNESS) or m.split(".")[0] in (
-        "mpc", "benchmarks"))  # fmt: skip
+    offending = sorted(m for m in imports if m.startswith(HARNESS) or m.split(".")[0] == "perf")
     assert not offending, f"{path.name} imports {offending}"
 
 
 def test_the_import_check_sees_a_harness_import(tmp_path):
     bad = tmp_path / "bad.py"
-    bad.write_text("from ..mpc import loop\nimport formation_bench.benchmarks.cli\n")
+    bad.write_text("from ..mpc import loop\nimport formation_bench.cli.main\n")
     imports = imported_modules(bad, "formation_bench.optimizers")
-    assert {"formation_bench.mpc", "formation_bench.benchmarks.cli"} <= imports
+    assert {"formation_bench.mpc", "formation_bench.cli.main"} <= imports
 
 
 def loaded_after(code: str) -> set[str]:
@@ -81,7 +91,7 @@ def test_listing_the_optimizers_loads_no_adapted_library():
 def test_the_solver_libraries_are_loaded_when_a_solver_is_built():
     loaded = loaded_after(
         "import numpy as np\n"
-        "from formation_bench.benchmarks.instants import record_instants\n"
+        "from formation_bench.instances.instants import record_instants\n"
         "from formation_bench.mpc.scenario import get_scenario\n"
         "from formation_bench.optimizers import get_optimizer\n"
         "problem = record_instants(get_scenario('paper'), get_optimizer('pso'), [1])[0].problem\n"
@@ -93,7 +103,7 @@ def test_the_solver_libraries_are_loaded_when_a_solver_is_built():
 def test_a_run_without_figures_loads_no_plotting_library(tmp_path):
     out = tmp_path / "run"
     loaded = loaded_after(
-        "from formation_bench.benchmarks.cli import main\n"
+        "from formation_bench.cli.main import main\n"
         f"assert main(['run', '--optimizer', 'pso', '--no-trigger', '--no-figures', '--set', "
         f"'n_steps=3', '--set', 'settle_time_s=0', '--out', {str(out)!r}]) == 0"
     )
@@ -119,9 +129,9 @@ def test_the_wheel_installs_one_top_level_package_with_its_data(tmp_path):
     top = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
     assert top == {"formation_bench"}
     for shipped in ("ablation", "comparison", "deadline", "paper", "trigger"):
-        assert f"formation_bench/benchmarks/experiments/suites/{shipped}.toml" in names
+        assert f"formation_bench/experiments/suites/{shipped}.toml" in names
     for data in ("v1.npz", "v1.json"):
-        assert f"formation_bench/benchmarks/instances/data/{data}" in names
+        assert f"formation_bench/instances/data/{data}" in names
     assert "formation_bench/py.typed" in names
     assert "formation_bench/mpc/solvers/ipopt_solver.py" in names
     assert "formation_bench/optimizers/adapters/nevergrad_adapter.py" in names
@@ -137,6 +147,6 @@ BSO_MODULES = ("bso_ops", "bso_clusters", "modified_bso", "original_bso", "cls_b
 
 @pytest.mark.parametrize("name", ["base.py", "population.py", "registry.py", "bound_handling.py"])
 def test_generic_population_code_imports_no_bso_operator(name):
-    imports = imported_modules(ROOT / "optimizers" / name, "formation_bench.optimizers")
+    imports = imported_modules(PACKAGE / "optimizers" / name, "formation_bench.optimizers")
     offending = sorted(m for m in imports if m.rsplit(".", 1)[-1].startswith(BSO_MODULES))
     assert not offending, f"{name} imports {offending}"

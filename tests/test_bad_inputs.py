@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from formation_bench.benchmarks.cli import main
+from formation_bench.cli.main import main
 
 RUN = ["run", "--optimizer", "pso", "--no-figures"]
 SHORT = ["--set", "n_steps=3", "--set", "settle_time_s=0"]
@@ -204,7 +204,7 @@ def readme_plugin_source() -> str:
 @pytest.fixture(autouse=True)
 def cold_kernel_cache(monkeypatch):
     """As on a first run: the compile notice must not come before a refusal."""
-    monkeypatch.setattr("formation_bench.benchmarks.cli.kernels_cached", lambda: False)
+    monkeypatch.setattr("formation_bench.cli.main.kernels_cached", lambda: False)
 
 
 @pytest.fixture(autouse=True)
@@ -323,7 +323,7 @@ def test_a_folder_that_is_not_writable_is_refused(tmp_path, monkeypatch, capsys)
     locked.mkdir()
     real_access = os.access
     monkeypatch.setattr(
-        "formation_bench.benchmarks.staging.os.access",
+        "formation_bench.pipeline.staging.os.access",
         lambda path, mode: Path(path) != locked and real_access(path, mode),
     )
     assert main([*RUN, *SHORT, "--out", str(locked / "run")]) == 2
@@ -357,7 +357,7 @@ def test_ctrl_c_exits_130_in_one_line_and_leaves_nothing_finished(
         (out / "keep.txt").write_text("mine\n")
     before = snapshot(tmp_path)
     process = subprocess.Popen(
-        [sys.executable, "-m", "formation_bench.benchmarks.cli", *args, "--progress",
+        [sys.executable, "-m", "formation_bench.cli.main", *args, "--progress",
          "--no-figures", "--out", str(out)],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
         # a test runner started in the background ignores SIGINT, and a child inherits that:
@@ -392,12 +392,12 @@ def test_ctrl_c_while_the_command_imports_its_modules_exits_130_in_one_line():
 
         class InterruptAnImport:
             def find_spec(self, name, path=None, target=None):
-                if name == "formation_bench.benchmarks.runner":
+                if name == "formation_bench.pipeline.runner":
                     signal.raise_signal(signal.SIGINT)
                 return None
 
         sys.meta_path.insert(0, InterruptAnImport())
-        from formation_bench.benchmarks.cli import main
+        from formation_bench.cli.main import main
         sys.exit(main(["list"]))
     """)
     done = subprocess.run(
@@ -420,7 +420,7 @@ def python_sigint():
 def test_ctrl_c_while_a_plugin_loads_and_again_while_it_is_reported(
     tmp_path, monkeypatch, capsys, python_sigint
 ):
-    from formation_bench.benchmarks import cli
+    from formation_bench.cli import main as cli
 
     plugin = tmp_path / "slow_plugin.py"
     plugin.write_text("import signal\nsignal.raise_signal(signal.SIGINT)\n")
@@ -444,7 +444,7 @@ def test_ctrl_c_while_a_plugin_loads_and_again_while_it_is_reported(
 
 
 def test_ctrl_c_while_parsing_the_arguments_exits_130(monkeypatch, capsys):
-    from formation_bench.benchmarks import cli
+    from formation_bench.cli import main as cli
 
     def interrupted() -> None:
         raise KeyboardInterrupt
@@ -485,7 +485,7 @@ def boxed() -> SystemError:
 
 
 def test_an_interrupt_reported_by_numba_as_a_system_error_is_an_interrupt():
-    from formation_bench.benchmarks.interrupts import is_interrupt
+    from formation_bench.pipeline.interrupts import is_interrupt
 
     assert is_interrupt(KeyboardInterrupt())
     assert is_interrupt(boxed())
@@ -497,10 +497,10 @@ def test_an_interrupt_reported_by_numba_as_a_system_error_is_an_interrupt():
 
 
 def test_a_sweep_run_raises_an_interrupt_and_returns_a_real_failure(monkeypatch):
-    from formation_bench.benchmarks.experiments import executors
-    from formation_bench.benchmarks.spec import RunSpec
+    from formation_bench.experiments import executors
     from formation_bench.mpc.scenario import get_scenario
     from formation_bench.optimizers import get_optimizer
+    from formation_bench.pipeline.spec import RunSpec
 
     scenario = get_scenario("paper")
     spec = RunSpec.of("pso", get_optimizer("pso"), "paper", scenario, trigger=True, seed=0)

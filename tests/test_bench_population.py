@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from formation_bench.benchmarks.perf import bbob, population_speed, replay
 from formation_bench.optimizers import get_optimizer
+from perf import bbob, population_speed, replay
 
 
 def test_bbob_runs_and_tabulates() -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from formation_bench.benchmarks.perf import population_speed, scaling, speed
+from perf import population_speed, scaling, speed
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -27,7 +27,7 @@ def test_scaling_script_reports_speedup_and_overhead(tmp_path, capsys, monkeypat
 
 def test_timing_suite_collects_every_optimizer_and_runs(tmp_path):
     listing = subprocess.run(
-        [sys.executable, "-m", "pytest", "benchmarks/perf/timing", "--collect-only", "-q"],
+        [sys.executable, "-m", "pytest", "perf/timing", "--collect-only", "-q"],
         capture_output=True,
         text=True,
         cwd=ROOT,
@@ -45,8 +45,8 @@ def test_timing_suite_collects_every_optimizer_and_runs(tmp_path):
             "-m",
             "pytest",
             "-q",
-            "benchmarks/perf/timing/test_solve_timing.py::test_solve_time[modified-bso-default]",
-            "benchmarks/perf/timing/test_solve_timing.py::test_solve_time[pso-equal-1200]",
+            "perf/timing/test_solve_timing.py::test_solve_time[modified-bso-default]",
+            "perf/timing/test_solve_timing.py::test_solve_time[pso-equal-1200]",
             f"--benchmark-json={saved}",
         ],
         capture_output=True,
@@ -75,7 +75,7 @@ def test_kernel_comparison_times_both_kernels_on_paper_problems():
 
 
 def test_startup_script_measures_overhead_and_compile(tmp_path, monkeypatch):
-    from formation_bench.benchmarks.perf import startup
+    from perf import startup
 
     short = ["--set", "n_steps=8", "--set", "settle_time_s=0.5", "--set", "max_iterations=3"]
     monkeypatch.setattr(startup, "RUN", [*startup.RUN, *short])

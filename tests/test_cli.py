@@ -7,16 +7,19 @@ import sys
 import pandas as pd
 import pytest
 
-from formation_bench.benchmarks.cli import main, parse_value
-from formation_bench.benchmarks.record import is_metric_column, record_columns
+from formation_bench.cli.main import main, parse_value
 from formation_bench.mpc.metrics import metric_infos, metric_of
+from formation_bench.pipeline.record import is_metric_column, record_columns
 
 SHORT = ["--set", "n_steps=25", "--set", "settle_time_s=1.0", "--set", "max_iterations=8"]
 
 
 def cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "benchmarks.cli", *args], capture_output=True, text=True, timeout=300
+        [sys.executable, "-m", "formation_bench.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
 
 
@@ -150,9 +153,9 @@ def test_parse_value():
 
 def test_a_sweep_run_is_repeated_exactly_by_run_with_its_entropy_and_budget(tmp_path):
     """The command docs/benchmarks.md gives for repeating a sweep run: seeds of 128 bits."""
-    from formation_bench.benchmarks.experiments.store import load_results
-    from formation_bench.benchmarks.experiments.suite import parse_suite
-    from formation_bench.benchmarks.experiments.sweep import run_sweep
+    from formation_bench.experiments.store import load_results
+    from formation_bench.experiments.suite import parse_suite
+    from formation_bench.experiments.sweep import run_sweep
 
     text = (
         'name = "repeat"\nseeds = 1\ntriggers = [true]\nbudgets = [{ max_evaluations = 150 }]\n'
@@ -210,13 +213,13 @@ def test_version_and_help(capsys):
 
 
 def test_first_run_notice_and_progress_bar_go_to_stderr(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr("formation_bench.benchmarks.cli.kernels_cached", lambda: False)
+    monkeypatch.setattr("formation_bench.cli.main.kernels_cached", lambda: False)
     args = ["run", "--optimizer", "pso", "--no-trigger", "--no-figures", "--progress",
             "--set", "n_steps=4", "--set", "settle_time_s=0"]  # fmt: skip
     assert main([*args, "--out", str(tmp_path / "a")]) == 0
     err = capsys.readouterr().err
     assert "compiling numba kernels" in err and "/4 [" in err and "instant" in err
-    monkeypatch.setattr("formation_bench.benchmarks.cli.kernels_cached", lambda: True)
+    monkeypatch.setattr("formation_bench.cli.main.kernels_cached", lambda: True)
     assert main([*args, "--no-progress", "--out", str(tmp_path / "b")]) == 0
     assert capsys.readouterr().err == ""
 
@@ -224,8 +227,8 @@ def test_first_run_notice_and_progress_bar_go_to_stderr(tmp_path, monkeypatch, c
 def test_the_kernel_cache_is_found_after_a_run():
     import numpy as np
 
-    from formation_bench.benchmarks.runner import kernels_cached, warm_up_kernels
     from formation_bench.optimizers import Bounds, Budget, get_optimizer
+    from formation_bench.pipeline.runner import kernels_cached, warm_up_kernels
 
     warm_up_kernels()
     get_optimizer("modified-bso").minimize(
@@ -279,7 +282,7 @@ def test_a_malformed_set_value_names_the_field_and_the_form(tmp_path, capsys):
 def test_the_record_columns_are_documented_as_declared():
     from pathlib import Path
 
-    from formation_bench.benchmarks.record import columns_table
+    from formation_bench.pipeline.record import columns_table
 
     text = (Path(__file__).parents[1] / "docs" / "benchmarks.md").read_text()
     documented = text.split("<!-- record columns:", 1)[1].split("\n", 1)[1].split("\n\n", 1)[0]

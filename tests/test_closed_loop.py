@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from formation_bench.benchmarks.instants import ObservedOptimizer
+from formation_bench.instances.instants import ObservedOptimizer
 from formation_bench.mpc.loop import simulate
 from formation_bench.mpc.metrics import (
     closed_loop_cost,

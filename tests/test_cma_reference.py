@@ -201,7 +201,7 @@ def test_the_check_tells_the_reflect_repair_apart() -> None:
 @pytest.mark.slow
 @needs_pycma
 def test_cma_es_is_not_worse_than_pycma_on_the_library() -> None:
-    from formation_bench.benchmarks.instances.library import shipped
+    from formation_bench.instances.library import shipped
 
     instances = shipped().instances("test")
     results = {}

@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from formation_bench.benchmarks.instants import record_instants
+from formation_bench.instances.instants import record_instants
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import (
     OPTIMIZERS,

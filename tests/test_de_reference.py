@@ -23,7 +23,7 @@ import pytest
 from scipy.optimize import differential_evolution
 from scipy.stats import wilcoxon
 
-from formation_bench.benchmarks.instances.library import Instance, shipped
+from formation_bench.instances.library import Instance, shipped
 from formation_bench.optimizers import Bounds, Budget, DifferentialEvolution, get_optimizer
 from formation_bench.optimizers.base import EvaluationCounter
 from formation_bench.optimizers.bound_handling import BoundHandling

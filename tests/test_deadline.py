@@ -6,11 +6,11 @@ import time
 import numpy as np
 import pytest
 
-from formation_bench.benchmarks.cli import main
-from formation_bench.benchmarks.experiments.suite import SuiteError, parse_suite
-from formation_bench.benchmarks.spec import RunSpec
+from formation_bench.cli.main import main
+from formation_bench.experiments.suite import SuiteError, parse_suite
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import Bounds, Budget, get_optimizer
+from formation_bench.pipeline.spec import RunSpec
 
 
 def slow_sphere(x: np.ndarray) -> np.ndarray:

@@ -16,8 +16,8 @@ import pytest
 from scipy.optimize import differential_evolution
 from scipy.stats import mannwhitneyu
 
-from formation_bench.benchmarks.instances.library import shipped
 from formation_bench.fields import describe_fields, kernel_field_names
+from formation_bench.instances.library import shipped
 from formation_bench.optimizers import Bounds, Budget, DifferentialEvolution, get_optimizer
 from formation_bench.optimizers.base import EvaluationCounter
 from formation_bench.optimizers.bound_handling import BoundHandling

@@ -30,11 +30,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from formation_bench.benchmarks.cli import main
-from formation_bench.benchmarks.experiments.suite import parse_suite
-from formation_bench.benchmarks.experiments.sweep import run_sweep
-from formation_bench.benchmarks.record import is_timing_column
-from formation_bench.benchmarks.staging import staged_folder
+from formation_bench.cli.main import main
+from formation_bench.experiments.suite import parse_suite
+from formation_bench.experiments.sweep import run_sweep
+from formation_bench.pipeline.record import is_timing_column
+from formation_bench.pipeline.staging import staged_folder
 
 ENTROPY = 0x5EED_FA17
 SUITE = """\
@@ -54,7 +54,7 @@ LARGE_SEEDS, SMALL_SEEDS = 20, 4
 """Runs: twice the seeds (with and without trigger). The large suite is for sweeps killed
 from outside, which need runs to interrupt; the small one for faults injected in-process."""
 SHORT_RUN = ["--set", "n_steps=25", "--set", "settle_time_s=1.0", "--set", "max_iterations=8"]
-COMMAND = [sys.executable, "-m", "formation_bench.benchmarks.cli"]
+COMMAND = [sys.executable, "-m", "formation_bench.cli.main"]
 DEADLINE_S = 180.0
 REAL_REPLACE = os.replace
 

@@ -10,8 +10,8 @@ import numpy as np
 import osqp
 import pytest
 
-from formation_bench.benchmarks.cli import main as cli_main
-from formation_bench.benchmarks.instants import record_instants
+from formation_bench.cli.main import main as cli_main
+from formation_bench.instances.instants import record_instants
 from formation_bench.mpc.loop import simulate
 from formation_bench.mpc.metrics import compute_metrics
 from formation_bench.mpc.problem import LocalProblem

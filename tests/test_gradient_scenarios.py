@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from formation_bench.benchmarks.instants import record_instants
+from formation_bench.instances.instants import record_instants
 from formation_bench.mpc.loop import simulate
 from formation_bench.mpc.metrics import compute_metrics
 from formation_bench.mpc.model import rollout

@@ -6,9 +6,9 @@ from collections import Counter, defaultdict
 import numpy as np
 import pytest
 
-from formation_bench.benchmarks.instances import build as build_module
-from formation_bench.benchmarks.instances.build import FAMILIES, DrawPlan, SearchPlan, draw
-from formation_bench.benchmarks.instances.library import (
+from formation_bench.instances import build as build_module
+from formation_bench.instances.build import FAMILIES, DrawPlan, SearchPlan, draw
+from formation_bench.instances.library import (
     DEGENERATE_J_STAR,
     J_STAR_ATOL,
     J_STAR_RTOL,

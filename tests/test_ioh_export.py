@@ -8,15 +8,15 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from formation_bench.benchmarks.analysis import ioh_export
-from formation_bench.benchmarks.analysis.scoring import (
+from formation_bench.analysis import ioh_export
+from formation_bench.analysis.scoring import (
     TARGETS,
     evaluations_to_target,
     normalised_gap,
 )
-from formation_bench.benchmarks.cli import main
-from formation_bench.benchmarks.experiments import score
-from formation_bench.benchmarks.instances.library import Library, load_shipped
+from formation_bench.cli.main import main
+from formation_bench.experiments import score
+from formation_bench.instances.library import Library, load_shipped
 
 ioh = pytest.importorskip("ioh")
 

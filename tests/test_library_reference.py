@@ -19,7 +19,7 @@ import pytest
 from scipy.optimize import differential_evolution
 from scipy.stats import wilcoxon
 
-from formation_bench.benchmarks.instances.library import Instance, shipped
+from formation_bench.instances.library import Instance, shipped
 from formation_bench.optimizers import get_optimizer
 
 SCIPY_STRATEGY = {"de": "rand1bin", "de-current-to-best": "currenttobest1bin"}

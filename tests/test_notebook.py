@@ -16,9 +16,9 @@ import pandas as pd
 import pytest
 from nbclient import NotebookClient
 
-from formation_bench.benchmarks.analysis import notebook as analysis
-from formation_bench.benchmarks.experiments.suite import load_suite
-from formation_bench.benchmarks.experiments.sweep import run_sweep
+from formation_bench.analysis import notebook as analysis
+from formation_bench.experiments.suite import load_suite
+from formation_bench.experiments.sweep import run_sweep
 
 ROOT = Path(__file__).parents[1]
 SUITES = ("paper", "ablation", "comparison", "trigger", "swarm", "robustness", "obstacles")

@@ -5,8 +5,8 @@ import math
 import pandas as pd
 import pytest
 
-from formation_bench.benchmarks.analysis import paper_budget
-from formation_bench.benchmarks.analysis.paper import PAPER_FIGURES, Reading
+from formation_bench.analysis import paper_budget
+from formation_bench.analysis.paper import PAPER_FIGURES, Reading
 
 
 def run(optimizer, max_evaluations, seed, trigger, *, tracking=0.5, settled_tracking=0.2,
@@ -168,7 +168,7 @@ def test_the_shipped_sweep_names_a_budget_for_every_optimiser_it_ran():
 
 
 def test_the_report_writes_the_section_and_the_form_that_ships(tmp_path):
-    from formation_bench.benchmarks.analysis.report import write_paper_budget
+    from formation_bench.analysis.report import write_paper_budget
 
     frame = sweep(lambda optimizer, m, seed, trigger: {"tracking": 2.0} if m == 100 else {})
     assert paper_budget.applies(frame)

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from formation_bench import plugins
-from formation_bench.benchmarks.experiments.store import load_results
+from formation_bench.experiments.store import load_results
 from formation_bench.optimizers import OPTIMIZERS
 from formation_bench.plugins import PluginError, Registry, load_plugin
 
@@ -86,7 +86,7 @@ def cli(*args: str, env_path: Path | None = None, cwd: Path | None = None):
             p for p in (str(env_path), env.get("PYTHONPATH", "")) if p
         )
     return subprocess.run(
-        [sys.executable, "-m", "formation_bench.benchmarks.cli", *args],
+        [sys.executable, "-m", "formation_bench.cli.main", *args],
         capture_output=True,
         text=True,
         env=env,
@@ -176,7 +176,7 @@ def plugin_file(tmp_path):
 
 def test_plugin_file_on_the_dask_path(tmp_path, plugin_file):
     distributed = pytest.importorskip("dask.distributed")
-    from formation_bench.benchmarks.cli import main
+    from formation_bench.cli.main import main
 
     suite = tmp_path / "plugin.toml"
     suite.write_text(SUITE.format(optimizer="dask-search", scenario="paper").replace(

@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from formation_bench.benchmarks.cli import main
+from formation_bench.cli.main import main
 from formation_bench.mpc.loop import simulate
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import PopulationOptimizer, get_optimizer, optimizer_names

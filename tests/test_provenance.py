@@ -6,12 +6,12 @@ from pathlib import Path
 
 import pytest
 
-from formation_bench.benchmarks import provenance
-from formation_bench.benchmarks.cli import main
-from formation_bench.benchmarks.experiments.store import load_results
-from formation_bench.benchmarks.experiments.suite import parse_suite
-from formation_bench.benchmarks.experiments.sweep import run_sweep
-from formation_bench.benchmarks.record import Provenance, is_timing_column
+from formation_bench.cli.main import main
+from formation_bench.experiments.store import load_results
+from formation_bench.experiments.suite import parse_suite
+from formation_bench.experiments.sweep import run_sweep
+from formation_bench.pipeline import provenance
+from formation_bench.pipeline.record import Provenance, is_timing_column
 
 ONE_RUN = """\
 name = "one"

@@ -48,14 +48,14 @@ def test_readme_plugin_settings_are_listed_and_its_refusal_is_printed_as_shown(t
     assert shown is not None, "the README shows a refused plugin setting"
     command, printed = shlex.split(shown[1]), shown[2]
     done = subprocess.run(
-        [sys.executable, "-m", "formation_bench.benchmarks.cli", *command[1:]],
+        [sys.executable, "-m", "formation_bench.cli.main", *command[1:]],
         capture_output=True, text=True, cwd=tmp_path, timeout=300,
     )  # fmt: skip
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip() == printed
     assert not (tmp_path / "out").exists()
     listing = subprocess.run(
-        [sys.executable, "-m", "formation_bench.benchmarks.cli", "--plugin", "my_search.py",
+        [sys.executable, "-m", "formation_bench.cli.main", "--plugin", "my_search.py",
          "list", "--fields", "my-random-search"],
         capture_output=True, text=True, cwd=tmp_path, timeout=300,
     )  # fmt: skip

@@ -3,9 +3,9 @@
 import pandas as pd
 import pytest
 
-from formation_bench.benchmarks.cli import main
-from formation_bench.benchmarks.experiments.suite import parse_suite
-from formation_bench.benchmarks.experiments.sweep import run_sweep
+from formation_bench.cli.main import main
+from formation_bench.experiments.suite import parse_suite
+from formation_bench.experiments.sweep import run_sweep
 
 SUITE = """\
 name = "small"

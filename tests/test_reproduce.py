@@ -4,9 +4,9 @@ import json
 
 import pandas as pd
 
-from formation_bench.benchmarks.analysis.paper import PAPER_FIGURES, comparison_rows, format_table
-from formation_bench.benchmarks.analysis.paper_budget import shipped_line
-from formation_bench.benchmarks.cli import main
+from formation_bench.analysis.paper import PAPER_FIGURES, comparison_rows, format_table
+from formation_bench.analysis.paper_budget import shipped_line
+from formation_bench.cli.main import main
 
 
 def test_reproduce_writes_both_runs_and_the_table(tmp_path, capsys):
@@ -75,7 +75,7 @@ def test_comparison_rows_read_the_right_metrics():
 
 
 def test_seed_table_counts_holds_per_figure():
-    from formation_bench.benchmarks.analysis.paper import format_seed_table
+    from formation_bench.analysis.paper import format_seed_table
 
     def run(track, per_uav):
         return [

@@ -12,14 +12,14 @@ import pytest
 from matplotlib.collections import LineCollection
 from matplotlib.patches import Circle, Polygon, StepPatch
 
-from formation_bench.benchmarks.analysis import run_figures as figures
-from formation_bench.benchmarks.cli import main
-from formation_bench.benchmarks.runner import execute
-from formation_bench.benchmarks.spec import RunSpec
+from formation_bench.analysis import run_figures as figures
+from formation_bench.cli.main import main
 from formation_bench.mpc import metrics
 from formation_bench.mpc.formations import FormationShape, formation_offsets
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import get_optimizer
+from formation_bench.pipeline.runner import execute
+from formation_bench.pipeline.spec import RunSpec
 
 STEPS = {"n_steps": 30, "settle_time_s": 2.0}
 """Short runs: 6 s, 30 instants."""

@@ -12,11 +12,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from formation_bench.benchmarks.analysis.score_report import write_score_report
-from formation_bench.benchmarks.cli import main
-from formation_bench.benchmarks.experiments import score
-from formation_bench.benchmarks.experiments.errors import StoreError
-from formation_bench.benchmarks.experiments.score import (
+from formation_bench.analysis.score_report import write_score_report
+from formation_bench.cli.main import main
+from formation_bench.experiments import score
+from formation_bench.experiments.errors import StoreError
+from formation_bench.experiments.score import (
     SCORE_FORMAT,
     ScoreError,
     ScoreRun,
@@ -25,9 +25,9 @@ from formation_bench.benchmarks.experiments.score import (
     score_runs,
     target_column,
 )
-from formation_bench.benchmarks.instances import library as library_module
-from formation_bench.benchmarks.instances.library import PHASES, Library, load_shipped
-from formation_bench.benchmarks.spec import canonical_json
+from formation_bench.instances import library as library_module
+from formation_bench.instances.library import PHASES, Library, load_shipped
+from formation_bench.pipeline.spec import canonical_json
 
 DEGENERATE = 1
 """The instance of the toy library marked degenerate (in the test split)."""
@@ -241,7 +241,7 @@ def test_score_refuses_a_split_the_library_does_not_have(tmp_path, capsys):
 
 
 def test_split_choices_are_the_score_splits():
-    from formation_bench.benchmarks.cli import build_parser
+    from formation_bench.cli.main import build_parser
 
     parser = build_parser()
     (sub,) = [a for a in parser._actions if a.dest == "command"]

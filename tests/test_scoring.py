@@ -7,8 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from formation_bench.benchmarks.analysis import score_report
-from formation_bench.benchmarks.analysis.scoring import (
+from formation_bench.analysis import score_report
+from formation_bench.analysis.scoring import (
     SUCCESS_TARGETS,
     TARGETS,
     evaluations_to_target,
@@ -20,7 +20,7 @@ from formation_bench.benchmarks.analysis.scoring import (
     shifted_geometric_mean,
     success_rate,
 )
-from formation_bench.benchmarks.experiments.score import SCORE_FORMAT, target_column
+from formation_bench.experiments.score import SCORE_FORMAT, target_column
 
 # --- the gaps and the statistics of trials ----------------------------------------------------
 

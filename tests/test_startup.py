@@ -12,11 +12,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from formation_bench.benchmarks.outputs import arrow_column, read_trace, text_column, write_trace
-from formation_bench.benchmarks.runner import execute
-from formation_bench.benchmarks.spec import RunSpec
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import get_optimizer
+from formation_bench.pipeline.outputs import arrow_column, read_trace, text_column, write_trace
+from formation_bench.pipeline.runner import execute
+from formation_bench.pipeline.spec import RunSpec
 
 PLOTTING = ("matplotlib", "seaborn")
 STATISTICS = ("scipy.stats", "sklearn", "joblib", "statsmodels", "scikit_posthocs")
@@ -27,7 +27,7 @@ SHORT = ["--set", "n_steps=6", "--set", "settle_time_s=0.5", "--set", "max_itera
 # Runs one command in this interpreter, then prints the modules it left imported.
 PROBE = """
 import json, sys
-from formation_bench.benchmarks.cli import main
+from formation_bench.cli.main import main
 try:
     code = main(sys.argv[1:])
 except SystemExit as stop:

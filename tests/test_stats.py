@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from formation_bench.benchmarks.analysis import stats
-from formation_bench.benchmarks.analysis.report import analyse, to_markdown
+from formation_bench.analysis import stats
+from formation_bench.analysis.report import analyse, to_markdown
 
 
 def test_describe_median_quartiles_and_ci():

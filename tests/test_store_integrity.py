@@ -16,16 +16,16 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from formation_bench.benchmarks.cli import main
-from formation_bench.benchmarks.experiments import score
-from formation_bench.benchmarks.experiments.errors import IntegrityError, ManifestError
-from formation_bench.benchmarks.experiments.manifest import read_manifest, write_manifest
-from formation_bench.benchmarks.experiments.seal import decode, read_sealed, unseal
-from formation_bench.benchmarks.experiments.store import ResultStore, load_results, load_traces
-from formation_bench.benchmarks.experiments.suite import load_suite
-from formation_bench.benchmarks.experiments.sweep import run_sweep
-from formation_bench.benchmarks.instances.library import Library, shipped
-from formation_bench.benchmarks.record import is_timing_column
+from formation_bench.cli.main import main
+from formation_bench.experiments import score
+from formation_bench.experiments.errors import IntegrityError, ManifestError
+from formation_bench.experiments.manifest import read_manifest, write_manifest
+from formation_bench.experiments.seal import decode, read_sealed, unseal
+from formation_bench.experiments.store import ResultStore, load_results, load_traces
+from formation_bench.experiments.suite import load_suite
+from formation_bench.experiments.sweep import run_sweep
+from formation_bench.instances.library import Library, shipped
+from formation_bench.pipeline.record import is_timing_column
 
 SUITE = """\
 name = "{name}"

@@ -11,11 +11,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from formation_bench.benchmarks.analysis import stats
-from formation_bench.benchmarks.analysis import suite_sections as sections
-from formation_bench.benchmarks.cli import main
-from formation_bench.benchmarks.experiments.suite import parse_suite
-from formation_bench.benchmarks.experiments.sweep import run_sweep
+from formation_bench.analysis import stats
+from formation_bench.analysis import suite_sections as sections
+from formation_bench.cli.main import main
+from formation_bench.experiments.suite import parse_suite
+from formation_bench.experiments.sweep import run_sweep
 
 OPTIMIZERS = ("modified-bso", "pso", "de")
 SCENARIOS = {
@@ -254,7 +254,7 @@ def test_report_writes_the_sections_of_a_real_sweep(results, capsys):
 
 
 def test_the_robustness_sentence_compares_each_level_with_the_nominal_run_of_its_budget():
-    from formation_bench.benchmarks.analysis import notebook as analysis
+    from formation_bench.analysis import notebook as analysis
 
     runs = fake_results(labels=("N3-complete", "loss-0.3", "loss-0.1", "gust-1"))
     slower = runs.assign(

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from formation_bench.benchmarks.perf import swarm_speed
+from perf import swarm_speed
 
 
 def test_tiny_run_times_every_configuration_and_profiles(tmp_path, capsys):

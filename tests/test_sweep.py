@@ -10,17 +10,17 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from formation_bench.benchmarks.experiments.manifest import write_manifest
-from formation_bench.benchmarks.experiments.store import (
+from formation_bench.experiments.manifest import write_manifest
+from formation_bench.experiments.store import (
     ResultStore,
     load_results,
     load_traces,
 )
-from formation_bench.benchmarks.experiments.suite import parse_suite
-from formation_bench.benchmarks.experiments.sweep import SweepError, run_sweep
-from formation_bench.benchmarks.record import is_timing_column
+from formation_bench.experiments.suite import parse_suite
+from formation_bench.experiments.sweep import SweepError, run_sweep
 from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer
 from formation_bench.optimizers.registry import RegisteredOptimizer
+from formation_bench.pipeline.record import is_timing_column
 
 TINY = """\
 name = "tiny"
@@ -235,7 +235,7 @@ def test_results_read_back_as_one_frame(reference):
 def test_the_recorded_commit_is_the_installed_code_not_the_current_directory(tmp_path, monkeypatch):
     import subprocess
 
-    from formation_bench.benchmarks.provenance import git_info
+    from formation_bench.pipeline.provenance import git_info
 
     other = tmp_path / "unrelated"
     other.mkdir()
@@ -263,7 +263,7 @@ def test_a_sweep_that_fails_or_was_killed_is_not_left_running(tmp_path, monkeypa
     def explode(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr("formation_bench.benchmarks.experiments.sweep._execute", explode)
+    monkeypatch.setattr("formation_bench.experiments.sweep._execute", explode)
     with pytest.raises(OSError, match="disk full"):
         sweep(tiny(seeds="1"), out)
     sessions = json.loads((out / "manifest.json").read_text())["sessions"]

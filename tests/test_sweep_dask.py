@@ -6,12 +6,12 @@ import time
 import pandas as pd
 import pytest
 
-from formation_bench.benchmarks.cli import main
-from formation_bench.benchmarks.experiments.executors import SCHEDULER_TIMEOUT_S
-from formation_bench.benchmarks.experiments.store import load_results
-from formation_bench.benchmarks.experiments.suite import parse_suite
-from formation_bench.benchmarks.experiments.sweep import SweepError, run_sweep
-from formation_bench.benchmarks.record import is_timing_column
+from formation_bench.cli.main import main
+from formation_bench.experiments.executors import SCHEDULER_TIMEOUT_S
+from formation_bench.experiments.store import load_results
+from formation_bench.experiments.suite import parse_suite
+from formation_bench.experiments.sweep import SweepError, run_sweep
+from formation_bench.pipeline.record import is_timing_column
 
 distributed = pytest.importorskip("dask.distributed")
 

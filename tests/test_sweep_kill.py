@@ -12,10 +12,10 @@ import pandas as pd
 import psutil
 import pytest
 
-from formation_bench.benchmarks.experiments.store import load_results
-from formation_bench.benchmarks.experiments.suite import load_suite
-from formation_bench.benchmarks.experiments.sweep import run_sweep
-from formation_bench.benchmarks.record import is_timing_column
+from formation_bench.experiments.store import load_results
+from formation_bench.experiments.suite import load_suite
+from formation_bench.experiments.sweep import run_sweep
+from formation_bench.pipeline.record import is_timing_column
 
 SUITE = """\
 name = "kill"
@@ -47,7 +47,7 @@ def stored(out: Path) -> int:
 def start_sweep(suite: Path, out: Path, log: Path) -> subprocess.Popen:
     with open(log, "ab") as handle:
         return subprocess.Popen(
-            [sys.executable, "-m", "benchmarks.cli", "sweep", str(suite), "--out", str(out)],
+            [sys.executable, "-m", "formation_bench.cli", "sweep", str(suite), "--out", str(out)],
             stdout=handle,
             stderr=handle,
             cwd=ROOT,
@@ -96,7 +96,7 @@ def test_sigkill_then_resume_gives_every_run_once_and_identical_metrics(suite_fi
     assert 0 < after_kill < TOTAL
 
     resumed = subprocess.run(
-        [sys.executable, "-m", "benchmarks.cli", "sweep", str(suite_file), "--out", str(out)],
+        [sys.executable, "-m", "formation_bench.cli", "sweep", str(suite_file), "--out", str(out)],
         capture_output=True,
         text=True,
         cwd=ROOT,

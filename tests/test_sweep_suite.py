@@ -8,20 +8,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from formation_bench.benchmarks.cli import main
-from formation_bench.benchmarks.experiments.executors import execute_run
-from formation_bench.benchmarks.experiments.suite import (
+from formation_bench.cli.main import main
+from formation_bench.experiments.executors import execute_run
+from formation_bench.experiments.suite import (
     SuiteError,
     load_suite,
     parse_suite,
     run_count,
     shipped_suites,
 )
-from formation_bench.benchmarks.record import is_metric_column, is_timing_column
-from formation_bench.benchmarks.spec import canonical_json, config_of, sha256_hex
 from formation_bench.mpc.loop import simulate
 from formation_bench.mpc.metrics import compute_metrics
 from formation_bench.optimizers import OPTIMIZERS
+from formation_bench.pipeline.record import is_metric_column, is_timing_column
+from formation_bench.pipeline.spec import canonical_json, config_of, sha256_hex
 
 GOOD = """\
 name = "t"
@@ -246,7 +246,7 @@ def test_cli_reports_a_bad_suite_in_one_line_exit_2(tmp_path):
         [
             sys.executable,
             "-m",
-            "formation_bench.benchmarks.cli",
+            "formation_bench.cli.main",
             "sweep",
             str(bad),
             "--out",
@@ -303,7 +303,7 @@ def test_entropy_is_128_bits_and_key_is_stable():
 def test_every_registered_configuration_hashes_the_same_in_any_process():
     code = (
         "from formation_bench.optimizers import OPTIMIZERS; "
-        "from formation_bench.benchmarks.spec import config_of, canonical_json;"
+        "from formation_bench.pipeline.spec import config_of, canonical_json;"
         "import hashlib; print({n: hashlib.sha256(canonical_json(config_of(r.optimizer)).encode())"
         ".hexdigest() for n, r in sorted(OPTIMIZERS.items())})"
     )
@@ -331,8 +331,8 @@ def test_an_optimiser_entry_runs_at_its_own_budgets(tmp_path):
 
 
 def _scenario_of(entry):
-    from formation_bench.benchmarks.spec import from_json_value
     from formation_bench.mpc.scenario import get_scenario
+    from formation_bench.pipeline.spec import from_json_value
 
     return get_scenario(entry.name, **from_json_value(json.loads(entry.overrides)))
 
@@ -399,7 +399,7 @@ def test_the_range_of_the_swarm_suite_keeps_the_tightest_swarm_connected_in_flig
 
 
 def test_robustness_suite_varies_one_disturbance_family_at_a_time():
-    from formation_bench.benchmarks.analysis.suite_sections import FAMILIES
+    from formation_bench.analysis.suite_sections import FAMILIES
 
     suite = load_suite("robustness")
     assert [e.name for e in suite.optimizers] == ["modified-bso", "pso", "ltv-osqp"]

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from formation_bench.benchmarks.analysis.variant_pairs import pair_table, to_markdown, variant_pairs
+from formation_bench.analysis.variant_pairs import pair_table, to_markdown, variant_pairs
 
 
 def _runs(optimizer: str, values: np.ndarray, trigger: bool = True) -> pd.DataFrame:

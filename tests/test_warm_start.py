@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from test_compiled_loop import PlainCallable, same_result
 
-from formation_bench.benchmarks.instances.library import Instance, shipped
+from formation_bench.instances.library import Instance, shipped
 from formation_bench.optimizers import (
     PSO,
     Bounds,

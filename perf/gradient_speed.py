@@ -1,0 +1,200 @@
+"""Time per solve of the derivative-based baselines beside the modified BSO, on the paper problem.
+
+Run ``python -m perf.gradient_speed`` (``--json FILE`` keeps the figures,
+``--quick`` runs a short scenario for a smoke test). In one process it measures,
+for ``ipopt``, ``ltv-osqp`` and ``modified-bso`` (or ``--optimizers``):
+
+A. **closed loop**: the paper scenario without trigger, so every UAV solves at
+   every instant (240 x 3 = 720 solves per run), each optimiser on the problems
+   its own run poses, warm-started from its own shifted plan (the way the
+   baselines are used: IPOPT gets its previous multipliers, OSQP keeps its
+   factorisation and iterates). "per solve" is what the loop times: building
+   the instant's problem (the cost's parameters) plus ``minimize`` (the problem
+   update, every cost and derivative evaluation, the solver);
+B. **same recorded problems**: the 720 problems of one modified-BSO run with
+   its warm starts, given to every optimiser in turn. The baselines see a plan
+   that is not their own, so IPOPT starts without multipliers and OSQP is set
+   up afresh at every call: a common-problem comparison, slower for them.
+
+Runs are interleaved (A for every optimiser, then again) ``--repeats`` times and
+pooled; CasADi and numba are built before anything is timed. Wall-clock times
+on a shared machine: the load average is printed with the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from formation_bench.instances.instants import ObservedOptimizer, record_instants
+from formation_bench.mpc.loop import simulate
+from formation_bench.mpc.metrics import compute_metrics
+from formation_bench.mpc.scenario import Scenario, get_scenario
+from formation_bench.optimizers import get_optimizer
+from formation_bench.pipeline.runner import warm_up_kernels
+
+DEFAULT_OPTIMIZERS = ("ipopt", "ltv-osqp", "modified-bso")
+TARGETS_MS = {"ipopt": 3.0, "ltv-osqp": 1.0}
+"""Median per solve the issue asks for (per UAV per instant, 2-core machine)."""
+
+
+def _summary(seconds: list[float] | np.ndarray) -> dict[str, float]:
+    values = np.asarray(seconds, dtype=np.float64)
+    return {
+        "n": int(values.size),
+        "median_ms": float(1e3 * np.median(values)),
+        "p95_ms": float(1e3 * np.percentile(values, 95)),
+        "max_ms": float(1e3 * values.max()),
+    }
+
+
+def measure(
+    names: tuple[str, ...] = DEFAULT_OPTIMIZERS, repeats: int = 2, quick: bool = False
+) -> dict[str, Any]:
+    """Every measurement of the module docstring, as a dict."""
+    scenario: Scenario = get_scenario("paper")
+    if quick:
+        scenario = scenario.with_overrides(n_steps=12, settle_time_s=0.0)
+        repeats = 1
+    warm_up_kernels()
+    optimizers = {name: get_optimizer(name) for name in names}
+    short = scenario.with_overrides(n_steps=2, settle_time_s=0.0)
+    for optimizer in optimizers.values():  # build CasADi functions and OSQP before timing
+        simulate(short, optimizer, trigger=False, seed=0)
+    results: dict[str, Any] = {
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "python": platform.python_version(),
+        "scenario": scenario.name,
+        "n_steps": scenario.n_steps,
+        "load_average_before": list(os.getloadavg()),
+        "closed_loop": {},
+        "recorded": {},
+    }
+    loop: dict[str, dict[str, list]] = {
+        name: {"loop": [], "optimizer": [], "iterations": [], "nfev": [], "metrics": []}
+        for name in names
+    }
+    for repeat in range(repeats):
+        for name, optimizer in optimizers.items():
+            timed = ObservedOptimizer(optimizer)
+            trace = simulate(scenario, timed, trigger=False, seed=repeat, optimizer_name=name)
+            record = loop[name]
+            record["loop"].extend(trace.solve_time_s[trace.solved].tolist())
+            record["optimizer"].extend(solve.seconds for solve in timed.solves)
+            record["iterations"].extend(int(solve.result.nit) for solve in timed.solves)
+            record["nfev"].extend(int(solve.result.nfev) for solve in timed.solves)
+            metrics = compute_metrics(trace).columns() if not quick else {}
+            record["metrics"].append(
+                {
+                    "seed": repeat,
+                    "solve_failures": int(trace.solve_failed.sum()),
+                    **{
+                        k: metrics[k]
+                        for k in metrics
+                        if k == "tracking_error_max_m" or k.startswith("distance_error_max_m_d")
+                    },
+                }
+            )
+    for name, record in loop.items():
+        results["closed_loop"][name] = {
+            "per_solve": _summary(record["loop"]),
+            "optimizer_only": _summary(record["optimizer"]),
+            "iterations_median": float(np.median(record["iterations"])),
+            "nfev_median": float(np.median(record["nfev"])),
+            "runs": record["metrics"],
+        }
+
+    instants = record_instants(
+        scenario, get_optimizer("modified-bso"), list(range(scenario.n_steps)), seed=0
+    )
+    recorded: dict[str, list[float]] = {name: [] for name in names}
+    for repeat in range(repeats):
+        for name, optimizer in optimizers.items():
+            rng = np.random.default_rng(repeat)
+            for inst in instants:
+                start = time.perf_counter()
+                optimizer.minimize(inst.problem, inst.problem.bounds, rng, None, inst.warm_start)
+                recorded[name].append(time.perf_counter() - start)
+    for name, times in recorded.items():
+        results["recorded"][name] = _summary(times)
+    results["load_average_after"] = list(os.getloadavg())
+    return results
+
+
+def format_results(results: dict[str, Any]) -> str:
+    """Markdown tables of :func:`measure`'s figures."""
+    lines = [
+        f"Paper scenario, no trigger, {results['n_steps']} instants x 3 UAVs per run; "
+        f"{results['machine']}, {results['cpus']} CPUs, load average "
+        f"{results['load_average_before'][0]:.2f} before / "
+        f"{results['load_average_after'][0]:.2f} after.",
+        "",
+        "A. Closed loop, each optimiser on its own run (per solve = problem build + minimize):",
+        "",
+        "| optimizer | solves | median per solve | p95 per solve | median minimize only "
+        "| p95 minimize only | median iterations | median nfev | failures | target (median) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, row in results["closed_loop"].items():
+        per, own = row["per_solve"], row["optimizer_only"]
+        failures = sum(run["solve_failures"] for run in row["runs"])
+        target = TARGETS_MS.get(name)
+        verdict = (
+            ""
+            if target is None
+            else f"< {target:g} ms: " + ("met" if per["median_ms"] < target else "NOT met")
+        )
+        lines.append(
+            f"| {name} | {per['n']} | {per['median_ms']:.2f} ms | {per['p95_ms']:.2f} ms "
+            f"| {own['median_ms']:.2f} ms | {own['p95_ms']:.2f} ms "
+            f"| {row['iterations_median']:g} | {row['nfev_median']:g} | {failures} | {verdict} |"
+        )
+    lines += [
+        "",
+        "B. The same recorded problems (one modified-BSO run's 720 problems and warm starts;",
+        "   the baselines start without their own previous solve: no multipliers, fresh OSQP):",
+        "",
+        "| optimizer | solves | median per solve | p95 per solve |",
+        "|---|---|---|---|",
+    ]
+    for name, row in results["recorded"].items():
+        lines.append(
+            f"| {name} | {row['n']} | {row['median_ms']:.2f} ms | {row['p95_ms']:.2f} ms |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m perf.gradient_speed",
+        description=__doc__.splitlines()[0],
+    )
+    parser.add_argument("--json", type=Path, help="also write the figures to this JSON file")
+    parser.add_argument("--repeats", type=int, default=2, help="interleaved repeats (default 2)")
+    parser.add_argument(
+        "--optimizers",
+        nargs="+",
+        default=list(DEFAULT_OPTIMIZERS),
+        help=f"registered names (default: {' '.join(DEFAULT_OPTIMIZERS)})",
+    )
+    parser.add_argument("--quick", action="store_true", help="12 instants, one repeat (smoke test)")
+    args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error("--repeats must be >= 1")
+    results = measure(tuple(args.optimizers), repeats=args.repeats, quick=args.quick)
+    print(format_results(results))
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,335 @@
+"""Speed benchmark of the hot paths on the paper problem.
+
+Run ``python -m perf.speed`` (add ``--json FILE`` to keep the figures).
+It records real per-UAV problems of the paper scenario, then measures:
+
+- the batch objective for a population of 30: compiled kernel versus the plain
+  eq. (14) reference evaluated row by row (the "before");
+- the cost kernel per evaluation, ``batch_cost`` (rotation recurrence) against
+  ``batch_cost_reference`` (three sin/cos pairs per RK4 sub-step) on the same
+  populations, alternating, and the ratio per repeat (its median is reported):
+  a ratio formed within one run holds up when other processes load the machine
+  (``--kernel-only`` runs just this);
+- one modified-BSO solve at its default budget (median over instants and
+  repeats; the compiled loop), split into cost evaluation (replayed, see
+  :mod:`perf.replay`), clustering (replayed, see
+  :func:`replayed_clustering_seconds`) and the rest;
+- k-means on a BSO population: the compiled Lloyd iteration versus
+  scikit-learn's KMeans from the same initial centres;
+- a whole ``reproduce`` (both closed-loop runs) in this process.
+
+All figures are wall-clock medians on this machine; pin the process (e.g.
+``taskset -c 0,1``) for comparable numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+import timeit
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from formation_bench.instances.instants import RecordedInstant, record_instants
+from formation_bench.mpc.cost import NO_PENALTIES, batch_cost, batch_cost_reference
+from formation_bench.mpc.scenario import get_scenario
+from formation_bench.optimizers import EvaluationCounter, ModifiedBSO, get_optimizer
+from formation_bench.optimizers.bso_ops import cluster_population
+from formation_bench.optimizers.clustering import lloyd_kmeans, sklearn_kmeans
+from formation_bench.pipeline.runner import execute, warm_up_kernels
+from formation_bench.pipeline.spec import RunSpec
+from perf.replay import replayed_objective_seconds, solve_batches
+
+
+def _median_seconds(func, number: int, repeat: int) -> float:
+    return float(np.median(timeit.repeat(func, number=number, repeat=repeat)) / number)
+
+
+def replayed_clustering_seconds(
+    optimizer: ModifiedBSO, instant: RecordedInstant, rng: np.random.Generator
+) -> float:
+    """Time of the k-means steps of one default-budget solve, replayed outside the solve.
+
+    The solve runs its k-means inside the one compiled call per iteration,
+    where it cannot be timed. So the solve is repeated step by step with the
+    same ``rng``, and the compiled k-means step (``cluster_population``: k-means
+    from m random distinct members, then each cluster's best) is timed on the
+    population each iteration clusters, from m members drawn by a separate
+    generator. Each timed call also pays the entry into a kernel (about
+    0.5 µs) that the fused iteration does not: a slight overestimate.
+    """
+    problem = instant.problem
+    counter = EvaluationCounter(problem, problem.dim, None)
+    t_max = optimizer.planned_iterations(optimizer.default_budget)
+    state = optimizer.init(counter, problem.bounds, rng, instant.warm_start, t_max)
+    seeds = np.random.default_rng(1).random((t_max, optimizer.n_clusters))
+    total = 0.0
+    for iteration in range(1, t_max + 1):
+        x, f = state.population()
+        start = time.perf_counter()
+        cluster_population(x, f, seeds[iteration - 1], optimizer.kmeans_max_iter)
+        total += time.perf_counter() - start
+        state = optimizer.step(state, counter, problem.bounds, rng, iteration)
+    return total
+
+
+def default_population_size() -> int:
+    """The population of the paper's optimiser and of PSO at their defaults (both 30)."""
+    sizes = {get_optimizer(name).population_size for name in ("modified-bso", "pso")}
+    if len(sizes) != 1:
+        raise ValueError(f"modified-bso and pso default to different populations: {sizes}")
+    return sizes.pop()
+
+
+def kernel_comparison(
+    instants: list[RecordedInstant], population_size: int, repeats: int, number: int = 200
+) -> dict[str, Any]:
+    """Per-evaluation CPU time of ``batch_cost_reference`` and ``batch_cost``, and their ratio.
+
+    Each problem gets one population drawn in its bounds. A repeat times
+    ``number`` calls of each kernel on every problem, the two kernels taking
+    turns on a problem, in this thread's CPU time; the ratio new / old is
+    formed per repeat, so slow spells from other processes that last longer
+    than a repeat cancel. Reported: medians over the repeats, the quartiles of
+    the ratio, the largest relative difference of the two kernels' costs, and
+    the load average before and after.
+    """
+    rng = np.random.default_rng(0)
+    calls = []
+    for inst in instants:
+        problem = inst.problem
+        scenario = problem.scenario
+        # the kernels' own arguments, as LocalProblem.__call__ passes them
+        args = (
+            problem.state, problem.block_of_step, scenario.period_s, scenario.rk4_substeps,
+            problem._distance_targets, problem._centre_target, scenario.w_dst, problem._w_centre,
+        )  # fmt: skip
+        calls.append((problem.bounds.sample(rng, population_size), args))
+    max_rel = 0.0
+    for x, args in calls:
+        old, new = batch_cost_reference(x, *args), batch_cost(x, *args, *NO_PENALTIES)
+        max_rel = max(max_rel, float(np.max(np.abs(new - old) / np.abs(old))))
+    load_before = os.getloadavg()
+    per_evaluation = number * population_size * len(calls)
+    old_s, new_s = [], []
+    for _ in range(repeats):
+        totals = {batch_cost_reference: 0.0, batch_cost: 0.0}
+        for x, args in calls:
+            for kernel in totals:
+                kernel_args = args if kernel is batch_cost_reference else (*args, *NO_PENALTIES)
+                start = time.thread_time()
+                for _ in range(number):
+                    kernel(x, *kernel_args)
+                totals[kernel] += time.thread_time() - start
+        old_s.append(totals[batch_cost_reference] / per_evaluation)
+        new_s.append(totals[batch_cost] / per_evaluation)
+    ratios = np.array(new_s) / np.array(old_s)
+    return {
+        "kernel_population": population_size,
+        "kernel_problems": len(calls),
+        "kernel_repeats": repeats,
+        "kernel_reference_per_eval_s": float(np.median(old_s)),
+        "kernel_rotation_per_eval_s": float(np.median(new_s)),
+        "kernel_ratio_median": float(np.median(ratios)),
+        "kernel_ratio_quartiles": [float(q) for q in np.quantile(ratios, [0.25, 0.75])],
+        "kernel_max_relative_difference": max_rel,
+        "load_average_before": list(load_before),
+        "load_average_after": list(os.getloadavg()),
+    }
+
+
+def format_kernel_comparison(results: dict[str, Any]) -> str:
+    """A Markdown table of :func:`kernel_comparison`'s figures."""
+    ns = 1e9
+    q1, q3 = results["kernel_ratio_quartiles"]
+    load = ", ".join(
+        f"{a:.2f} -> {b:.2f}"
+        for a, b in zip(results["load_average_before"], results["load_average_after"], strict=True)
+    )
+    rows = [
+        (
+            f"cost kernel before (batch_cost_reference), population {results['kernel_population']}",
+            f"{ns * results['kernel_reference_per_eval_s']:.0f} ns per evaluation",
+        ),
+        (
+            "cost kernel now (batch_cost, rotation recurrence)",
+            f"{ns * results['kernel_rotation_per_eval_s']:.0f} ns per evaluation",
+        ),
+        (
+            f"ratio now / before, per repeat ({results['kernel_repeats']} repeats)",
+            f"{results['kernel_ratio_median']:.3f} (quartiles {q1:.3f}, {q3:.3f})",
+        ),
+        (
+            "largest relative difference of the costs",
+            f"{results['kernel_max_relative_difference']:.1e}",
+        ),
+        ("load average (1, 5, 15 min) before -> after", load),
+    ]
+    width = max(len(r[0]) for r in rows)
+    lines = [f"| {'measurement':<{width}} | value |", f"|{'-' * (width + 2)}|-------|"]
+    lines += [f"| {name:<{width}} | {value} |" for name, value in rows]
+    return "\n".join(lines)
+
+
+def measure(quick: bool = False) -> dict[str, Any]:
+    """Run every measurement; ``quick`` shrinks repeats (for a smoke test)."""
+    warm_up_kernels()
+    scenario = get_scenario("paper")
+    optimizer = get_optimizer("modified-bso")
+    assert isinstance(optimizer, ModifiedBSO)
+    instants = record_instants(scenario, optimizer, [5, 60, 150], seed=1)
+    results_kernel = kernel_comparison(
+        instants, default_population_size(), repeats=3 if quick else 21, number=20 if quick else 200
+    )
+    rng = np.random.default_rng(0)
+    results: dict[str, Any] = {
+        "machine": platform.platform(),
+        "python": platform.python_version(),
+        "decision_dim": instants[0].problem.dim,
+        **results_kernel,
+    }
+
+    population = [inst.problem.bounds.sample(rng, 30) for inst in instants]
+    repeat = 3 if quick else 15
+    compiled = [
+        _median_seconds(lambda p=inst.problem, x=pop: p(x), 200, repeat)
+        for inst, pop in zip(instants, population, strict=True)
+    ]
+    results["objective_pop30_compiled_s"] = float(np.median(compiled))
+
+    problem, pop = instants[0].problem, population[0]
+
+    def plain() -> None:
+        for row in pop:
+            problem.reference_cost(row)
+
+    results["objective_pop30_plain_python_s"] = _median_seconds(plain, 1, 3 if quick else 7)
+
+    solve_times, objective_times, clustering_times, nfevs = [], [], [], []
+    for k, inst in enumerate(instants):
+        for r in range(2 if quick else 10):
+            solve_rng = np.random.default_rng([k, r])
+            start = time.perf_counter()
+            result = optimizer.minimize(
+                inst.problem, inst.problem.bounds, solve_rng, None, inst.warm_start
+            )
+            solve_times.append(time.perf_counter() - start)
+            batches = solve_batches(
+                optimizer, inst.problem, inst.problem.bounds, np.random.default_rng([k, r]), None,
+                inst.warm_start,
+            )  # fmt: skip
+            objective_times.append(
+                replayed_objective_seconds(inst.problem.compiled, batches, clock=time.perf_counter)
+            )
+            clustering_times.append(
+                replayed_clustering_seconds(optimizer, inst, np.random.default_rng([k, r]))
+            )
+            nfevs.append(result.nfev)
+    solve = float(np.median(solve_times))
+    objective = float(np.median(objective_times))
+    clustering = float(np.median(clustering_times))
+    results.update(
+        {
+            "bso_solve_median_s": solve,
+            "bso_solve_nfev": int(np.median(nfevs)),
+            "bso_objective_median_s": objective,
+            "bso_clustering_median_s": clustering,
+            "bso_rest_median_s": solve - objective - clustering,
+            "bso_solve_over_objective": solve / objective,
+        }
+    )
+
+    points = population[1]
+    centres = points[rng.choice(30, size=5, replace=False)]
+    results["kmeans_compiled_s"] = _median_seconds(
+        lambda: lloyd_kmeans(points, centres), 200, repeat
+    )
+    results["kmeans_sklearn_s"] = _median_seconds(
+        lambda: sklearn_kmeans(points, centres), 5, 3 if quick else 7
+    )
+
+    if not quick:
+        start = time.perf_counter()
+        for trigger in (False, True):
+            execute(
+                RunSpec.of("modified-bso", optimizer, "paper", scenario, trigger=trigger, seed=0)
+            )
+        results["reproduce_both_runs_s"] = time.perf_counter() - start
+    return results
+
+
+def format_results(results: dict[str, Any]) -> str:
+    """A Markdown table of :func:`measure`'s figures."""
+    us = 1e6
+    rows = [
+        (
+            "batch objective, population 30, compiled",
+            f"{us * results['objective_pop30_compiled_s']:.1f} µs",
+        ),
+        (
+            "same, plain eq. (14) row by row (reference)",
+            f"{us * results['objective_pop30_plain_python_s']:.0f} µs",
+        ),
+        (
+            f"modified-BSO solve, default budget ({results['bso_solve_nfev']} evaluations)",
+            f"{1e3 * results['bso_solve_median_s']:.2f} ms",
+        ),
+        ("  of which cost evaluation", f"{1e3 * results['bso_objective_median_s']:.2f} ms"),
+        ("  of which clustering", f"{1e3 * results['bso_clustering_median_s']:.2f} ms"),
+        ("  of which the rest", f"{1e3 * results['bso_rest_median_s']:.2f} ms"),
+        ("solve time / cost-evaluation time", f"{results['bso_solve_over_objective']:.2f}"),
+        ("k-means of 30 points, compiled Lloyd", f"{us * results['kmeans_compiled_s']:.1f} µs"),
+        ("k-means of 30 points, scikit-learn KMeans", f"{us * results['kmeans_sklearn_s']:.0f} µs"),
+    ]
+    if "reproduce_both_runs_s" in results:
+        rows.append(
+            ("reproduce, both runs (kernels cached)", f"{results['reproduce_both_runs_s']:.1f} s")
+        )
+    width = max(len(r[0]) for r in rows)
+    lines = [f"| {'measurement':<{width}} | median |", f"|{'-' * (width + 2)}|--------|"]
+    lines += [f"| {name:<{width}} | {value} |" for name, value in rows]
+    return "\n".join(lines) + "\n\n" + format_kernel_comparison(results)
+
+
+def measure_kernels(repeats: int = 21, number: int = 200) -> dict[str, Any]:
+    """Only :func:`kernel_comparison`, on the recorded paper problems."""
+    warm_up_kernels()
+    instants = record_instants(
+        get_scenario("paper"), get_optimizer("modified-bso"), [5, 60, 150], seed=1
+    )
+    results = {"machine": platform.platform(), "python": platform.python_version()}
+    results.update(kernel_comparison(instants, default_population_size(), repeats, number))
+    return results
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m perf.speed", description=__doc__.splitlines()[0]
+    )
+    parser.add_argument("--json", type=Path, help="also write the figures to this JSON file")
+    parser.add_argument("--quick", action="store_true", help="few repeats, no closed-loop run")
+    parser.add_argument(
+        "--kernel-only", action="store_true", help="only the cost kernel, before against now"
+    )
+    parser.add_argument(
+        "--repeats", type=int, default=21, help="repeats of the kernel comparison (21)"
+    )
+    args = parser.parse_args(argv)
+    if args.kernel_only:
+        results = measure_kernels(args.repeats)
+        print(format_kernel_comparison(results))
+    else:
+        results = measure(quick=args.quick)
+        print(format_results(results))
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

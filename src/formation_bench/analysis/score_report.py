@@ -1,0 +1,577 @@
+"""The report of score runs: the leaderboard on the instance library and its statistics.
+
+Two gaps measure a solve's final cost ``f`` against the instance's best-known cost ``J*``
+(:mod:`~formation_bench.analysis.scoring`): the relative gap ``(f - J*) / J*`` and
+the normalised gap ``(f - J*) / (f_warm - J*)``, the share of the possible improvement (from
+the warm start's cost to ``J*``) left. Every target (success rates, ERT, ECDFs, the failure
+threshold of the time statistics) is a target of the normalised gap.
+
+The headline is over the non-degenerate instances (a degenerate one has ``J*`` near zero or
+a warm start already optimal, so neither gap says anything about the optimiser), each
+distinct problem (content hash) counted once: per optimiser and budget, each problem's gaps,
+evaluations and solve time are first averaged over its trials (its seeds, and repeats of the
+problem in other runs of the same optimiser and budget), and the trial statistics weight each
+trial by one over its problem's trials. The leaderboard ranks by the median over problems of
+the normalised gap, and shows the median relative gap with its bootstrap 95 % CI, success
+rates at :data:`~formation_bench.analysis.scoring.SUCCESS_TARGETS`, median
+evaluations and solve time (median, and shifted geometric mean with failures, normalised gap
+above :data:`FAILURE_GAP`, charged at the slowest solve at the same budget). Beside it:
+
+- the degenerate stratum: per optimiser, its problems, the share of them on which it returns
+  the warm start's cost or better, and the median ``|f - J*|``;
+- per phase of the loop (start-up, transient, steady): the median normalised gap;
+- paired comparisons, by problem, of the normalised gap: every optimiser against
+  :data:`BASELINE` and every ``X-warm`` against ``X`` (Wilcoxon signed-rank, two-sided,
+  Holm-adjusted within each budget and kind of comparison; Vargha-Delaney A12);
+- COCO's expected running time to each target, the Dolan-More performance profile of solve
+  time and, with figures, the runtime ECDF.
+
+Files: ``score.md``, ``score_summary.csv``, ``score_degenerate.csv``, ``score_phases.csv``,
+``score_paired.csv``, ``score_ert.csv``, ``score_profile.csv`` and, with figures,
+``figures/score_ecdf.png`` and ``figures/score_profile.png``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from formation_bench.analysis import stats
+from formation_bench.analysis.scoring import (
+    SUCCESS_TARGETS,
+    TARGET_GAP,
+    TARGETS,
+    expected_running_time,
+    performance_profile,
+    runtime_ecdf,
+    shifted_geometric_mean,
+    success_rate,
+)
+from formation_bench.analysis.variant_pairs import variant_pairs
+from formation_bench.experiments.score import check_score_format, target_column
+from formation_bench.instances.library import PHASES
+
+FAILURE_GAP = 1e-3
+"""A trial whose final normalised gap is above this failed (for the time statistics)."""
+TIME_SHIFT_S = 1e-3
+"""Shift of the geometric mean of solve times, s (about a tenth of a typical solve)."""
+PROFILE_TAUS = np.array([1, 1.5, 2, 3, 5, 10, 20, 50, 100], dtype=float)
+"""Factors of the performance profile."""
+BASELINE = "modified-bso"
+"""The optimiser every other one is compared with, when the scores hold it."""
+WARM_TOLERANCE = 1e-9
+"""Relative: a final cost within this of the warm start's cost counts as returning it."""
+
+GROUP = ["optimizer", "budget"]
+PROBLEM = [*GROUP, "content_hash"]
+
+
+def success_column(target: float) -> str:
+    """Column of the success rate at a normalised gap of ``target`` (``success_norm_1e-03``)."""
+    return f"success_norm_{target:.0e}"
+
+
+# --- the trials -------------------------------------------------------------------------------
+
+
+def headline_trials(scores: pd.DataFrame) -> pd.DataFrame:
+    """The trials on non-degenerate instances, each with ``weight`` one over the trials of its
+    problem (content hash) for the same optimiser and budget, so every problem counts once."""
+    trials = scores[~scores["degenerate"].astype(bool)]
+    count = trials.groupby(PROBLEM, sort=False)["fun"].transform("size")
+    return trials.assign(weight=1.0 / count)
+
+
+def per_problem(trials: pd.DataFrame) -> pd.DataFrame:
+    """One row per optimiser, budget and problem: its trials' gaps, evaluations and solve time
+    averaged (seeds first, and repeats of the problem), with its phase and trial count."""
+    return (
+        trials.groupby(PROBLEM, sort=False)
+        .agg(
+            normalised_gap=("normalised_gap", "mean"),
+            gap=("gap", "mean"),
+            abs_error=("abs_error", "mean"),
+            warm_or_better=("warm_or_better", "mean"),
+            nfev=("nfev", "mean"),
+            seconds=("seconds", "mean"),
+            phase=("phase", "first"),
+            trials=("fun", "size"),
+        )
+        .reset_index()
+    )
+
+
+def _with_measures(scores: pd.DataFrame) -> pd.DataFrame:
+    """``scores`` with ``abs_error`` ``|f - J*|`` and ``warm_or_better``."""
+    warm = scores["warm_cost"].to_numpy(dtype=float)
+    return scores.assign(
+        abs_error=(scores["fun"] - scores["j_star"]).abs(),
+        warm_or_better=scores["fun"].to_numpy(dtype=float) <= warm + WARM_TOLERANCE * np.abs(warm),
+    )
+
+
+def repeated_problems(scores: pd.DataFrame) -> tuple[int, int]:
+    """``(within runs, across runs)``: content hashes repeated within one score run (the
+    library promises there are none), and (optimiser, budget, seed, problem) solved by more
+    than one run (runs over overlapping splits or libraries)."""
+    within = int(scores.duplicated(["run_key", "content_hash"]).sum())
+    across = scores.groupby([*GROUP, "seed", "content_hash"], sort=False)["run_key"].nunique()
+    return within, int((across > 1).sum())
+
+
+# --- the tables -------------------------------------------------------------------------------
+
+
+def summary_table(scores: pd.DataFrame) -> pd.DataFrame:
+    """The headline: one row per optimiser and budget over its non-degenerate problems, ranked
+    within each budget by the median normalised gap (rank 1: the lowest)."""
+    scores = _with_measures(scores)
+    trials = headline_trials(scores)
+    problems = per_problem(trials)
+    # a failure is charged at the slowest solve of any optimiser at the same budget
+    slowest = trials.groupby("budget")["seconds"].max()
+    rows = []
+    for (optimizer, budget), mine in problems.groupby(GROUP, sort=False):
+        solves = trials[(trials["optimizer"] == optimizer) & (trials["budget"] == budget)]
+        weights = solves["weight"].to_numpy()
+        normalised = stats.describe(mine["normalised_gap"].to_numpy())
+        relative = stats.describe(mine["gap"].to_numpy())
+        final = solves["normalised_gap"].to_numpy(dtype=float)
+        rows.append(
+            {
+                "optimizer": optimizer,
+                "budget": budget,
+                "instances": len(mine),
+                "trials": len(solves),
+                "norm_gap_median": normalised.median,
+                "norm_gap_q1": normalised.q1,
+                "norm_gap_q3": normalised.q3,
+                "norm_gap_ci_low": normalised.ci_low,
+                "norm_gap_ci_high": normalised.ci_high,
+                "gap_median": relative.median,
+                "gap_q1": relative.q1,
+                "gap_q3": relative.q3,
+                "gap_ci_low": relative.ci_low,
+                "gap_ci_high": relative.ci_high,
+                **{success_column(t): success_rate(final, t, weights) for t in SUCCESS_TARGETS},
+                "nfev_median": float(mine["nfev"].median()),
+                "solve_time_median_s": float(mine["seconds"].median()),
+                "solve_time_sgm_s": shifted_geometric_mean(
+                    solves["seconds"].to_numpy(),
+                    TIME_SHIFT_S,
+                    ~(final <= FAILURE_GAP),
+                    charge=slowest[budget],
+                    weights=weights,
+                ),
+            }
+        )
+    columns = ["optimizer", "budget", "rank", "instances", "trials", "norm_gap_median"]
+    if not rows:
+        return pd.DataFrame(columns=columns)
+    summary = pd.DataFrame(rows).sort_values(["budget", "norm_gap_median"], ignore_index=True)
+    rank = summary.groupby("budget", sort=False)["norm_gap_median"].rank(method="min")
+    summary.insert(2, "rank", rank.astype("Int64"))
+    return summary
+
+
+def degenerate_table(scores: pd.DataFrame) -> pd.DataFrame:
+    """The degenerate stratum, left out of the headline: per optimiser and budget, its
+    problems and trials, the share of problems on which it returns the warm start's cost or
+    better (averaged over each problem's trials) and the median ``|f - J*|``."""
+    scores = _with_measures(scores)
+    degenerate = scores[scores["degenerate"].astype(bool)]
+    columns = [
+        "optimizer",
+        "budget",
+        "instances",
+        "trials",
+        "warm_or_better_share",
+        "abs_error_median",
+    ]
+    if degenerate.empty:
+        return pd.DataFrame(columns=columns)
+    rows = []
+    for (optimizer, budget), mine in per_problem(degenerate).groupby(GROUP, sort=False):
+        rows.append(
+            {
+                "optimizer": optimizer,
+                "budget": budget,
+                "instances": len(mine),
+                "trials": int(mine["trials"].sum()),
+                "warm_or_better_share": float(mine["warm_or_better"].mean()),
+                "abs_error_median": float(mine["abs_error"].median()),
+            }
+        )
+    return pd.DataFrame(rows, columns=columns).sort_values(
+        ["budget", "optimizer"], ignore_index=True
+    )
+
+
+def phase_table(scores: pd.DataFrame) -> pd.DataFrame:
+    """Median normalised gap per optimiser, budget and phase of the loop, over the
+    non-degenerate problems (each averaged over its trials first)."""
+    problems = per_problem(headline_trials(_with_measures(scores)))
+    rows = []
+    for (optimizer, budget), mine in problems.groupby(GROUP, sort=False):
+        for phase in PHASES:
+            gaps = mine.loc[mine["phase"] == phase, "normalised_gap"]
+            rows.append(
+                {
+                    "optimizer": optimizer,
+                    "budget": budget,
+                    "phase": phase,
+                    "instances": len(gaps),
+                    "norm_gap_median": float(gaps.median()) if len(gaps) else math.nan,
+                }
+            )
+    return pd.DataFrame(
+        rows, columns=["optimizer", "budget", "phase", "instances", "norm_gap_median"]
+    )
+
+
+def comparisons(optimizers: list[str]) -> list[tuple[str, str, str]]:
+    """``(kind, x, y)`` of the paired comparisons among ``optimizers``: each against
+    :data:`BASELINE` when it is there, each ``X-warm`` against ``X``."""
+    present = set(optimizers)
+    found = []
+    if BASELINE in present:
+        found += [(f"against {BASELINE}", x, BASELINE) for x in optimizers if x != BASELINE]
+    found += [("warm start against uniform start", x, y) for x, y in variant_pairs(optimizers)]
+    return found
+
+
+def a12_reading(x: str, y: str, a12: float) -> str:
+    """A sentence saying which way A12 = P(x > y) + P(x = y) / 2 of the normalised gap points."""
+    if not math.isfinite(a12):
+        return "no pairs"
+    if a12 == 0.5:
+        return f"no difference: {x} and {y} equally likely to leave the smaller gap"
+    better, worse, p = (x, y, 1 - a12) if a12 < 0.5 else (y, x, a12)
+    return (
+        f"favours {better}: a {better} solve leaves the smaller normalised gap than a {worse} "
+        f"solve with probability {p:.2f} (ties half)"
+    )
+
+
+def paired_table(scores: pd.DataFrame) -> pd.DataFrame:
+    """Paired comparisons of the normalised gap, one row per budget and comparison
+    (:func:`comparisons`), paired by problem (each averaged over its trials first): the
+    medians, the median of the differences x - y, wins/losses/ties of x, Wilcoxon's two-sided
+    p, Holm-adjusted within the budget and kind of comparison, and A12 with its reading."""
+    problems = per_problem(headline_trials(_with_measures(scores)))
+    rows = []
+    for budget, at_budget in problems.groupby("budget", sort=False):
+        table = at_budget.pivot_table(
+            index="content_hash", columns="optimizer", values="normalised_gap", aggfunc="first"
+        )
+        found = []
+        for kind, x_name, y_name in comparisons(sorted(table.columns)):
+            pair = table[[x_name, y_name]].dropna()
+            compared = stats.paired_comparison(pair[x_name], pair[y_name])
+            found.append(
+                {
+                    "budget": budget,
+                    "comparison": kind,
+                    "x": x_name,
+                    "y": y_name,
+                    "x_norm_gap_median": compared.pop("x_median"),
+                    "y_norm_gap_median": compared.pop("y_median"),
+                    **compared,
+                    "reading": a12_reading(x_name, y_name, compared["a12"]),
+                }
+            )
+        for kind in dict.fromkeys(r["comparison"] for r in found):
+            stats.holm_family([r for r in found if r["comparison"] == kind])
+        rows += found
+    columns = [
+        "budget", "comparison", "x", "y", "pairs", "x_norm_gap_median", "y_norm_gap_median",
+        "median_difference", "x_lower", "x_higher", "ties", "p", "p_holm", "significant",
+        "a12", "reading",
+    ]  # fmt: skip
+    return pd.DataFrame(rows, columns=columns)
+
+
+def ert_table(scores: pd.DataFrame) -> pd.DataFrame:
+    """COCO's expected running time (evaluations) per optimiser, budget and target of the
+    normalised gap, over the non-degenerate trials weighted so each problem counts once;
+    ``successes`` is the number of trials that reached the target."""
+    rows = []
+    for (optimizer, budget), trials in headline_trials(scores).groupby(GROUP, sort=False):
+        used = trials["nfev"].to_numpy(dtype=float)
+        weights = trials["weight"].to_numpy()
+        for target in TARGETS:
+            hits = trials[target_column(target)].to_numpy(dtype=float)
+            rows.append(
+                {
+                    "optimizer": optimizer,
+                    "budget": budget,
+                    "target_norm_gap": target,
+                    "successes": int(np.isfinite(hits).sum()),
+                    "trials": len(trials),
+                    "ert_evaluations": expected_running_time(hits, used, weights),
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def profile_table(scores: pd.DataFrame) -> pd.DataFrame:
+    """Performance profile of solve time per budget over the non-degenerate problems (mean
+    over each problem's trials; a trial with a normalised gap above :data:`FAILURE_GAP`
+    fails, and so does the problem's time)."""
+    frames = []
+    for budget, trials in headline_trials(scores).groupby("budget", sort=False):
+        solved = trials["normalised_gap"].to_numpy(dtype=float) <= FAILURE_GAP
+        timed = trials.assign(time=np.where(solved, trials["seconds"], np.inf))
+        per_problem_time = timed.groupby(["content_hash", "optimizer"])["time"].mean().unstack()
+        profile = performance_profile(per_problem_time, PROFILE_TAUS)
+        frames.append(profile.reset_index().melt("tau", var_name="optimizer", value_name="share"))
+        frames[-1].insert(0, "budget", budget)
+    if not frames:
+        return pd.DataFrame(columns=["budget", "tau", "optimizer", "share"])
+    return pd.concat(frames, ignore_index=True)
+
+
+def ecdf_curves(scores: pd.DataFrame, points: int = 40) -> pd.DataFrame:
+    """Share of (trial, target of the normalised gap) pairs reached against evaluations, per
+    optimiser and budget, over the non-degenerate trials weighted so each problem counts once."""
+    trials_all = headline_trials(scores)
+    top = max(float(trials_all["nfev"].max()) if len(trials_all) else 0.0, 10.0)
+    budgets = np.unique(np.geomspace(1, top, points).round())
+    columns = [target_column(t) for t in TARGETS]
+    rows = []
+    for (optimizer, budget), trials in trials_all.groupby(GROUP, sort=False):
+        shares = runtime_ecdf(
+            trials[columns].to_numpy(dtype=float), budgets, trials["weight"].to_numpy()
+        )
+        rows += [
+            {"optimizer": optimizer, "budget": budget, "evaluations": b, "share": s}
+            for b, s in zip(budgets, shares, strict=True)
+        ]
+    return pd.DataFrame(rows, columns=["optimizer", "budget", "evaluations", "share"])
+
+
+# --- the leaderboard --------------------------------------------------------------------------
+
+
+def _g(value: float, spec: str = ".3g") -> str:
+    return "-" if value is None or not math.isfinite(float(value)) else format(value, spec)
+
+
+def _share(value: float) -> str:
+    return "-" if not math.isfinite(float(value)) else f"{value:.0%}"
+
+
+def _p(value: float) -> str:
+    return "-" if not math.isfinite(float(value)) else f"{value:.2g}"
+
+
+def to_markdown(
+    summary: pd.DataFrame,
+    degenerate: pd.DataFrame,
+    phases: pd.DataFrame,
+    paired: pd.DataFrame,
+    *,
+    library: str,
+    notes: list[str] = (),
+) -> str:
+    """The leaderboard per budget, then the degenerate stratum, the phases and the paired
+    comparisons at that budget."""
+    targets = " | ".join(f"{t:.0e}" for t in SUCCESS_TARGETS[1:])
+    lines = [
+        f"# Score on the instance library {library}",
+        "",
+        "Relative gap: (f - J*) / J*. Normalised gap: (f - J*) / (f_warm - J*), the share of "
+        "the possible improvement (from the warm start's cost f_warm to the best-known J*) "
+        "left; 1 at the warm start, 0 at J*.",
+        "",
+        "Headline: the non-degenerate instances, each distinct problem (content hash) counted "
+        "once; per optimiser, each problem's gaps, evaluations and times are averaged over its "
+        "trials (seeds) first. **Ranked by the median normalised gap** over the problems "
+        f"(rank 1: the lowest). Every target is a target of the {TARGET_GAP}: success at t "
+        "= final normalised gap <= t (1e-3: 99.9 % of the possible improvement made), the "
+        "share of trials, each problem weighted once. Solve time: median over problems, and "
+        f"shifted geometric mean (shift {TIME_SHIFT_S * 1e3:g} ms) with trials whose "
+        f"normalised gap is above {FAILURE_GAP:g} charged at the slowest solve at the same "
+        "budget. CI: percentile bootstrap 95 % of the median.",
+        "",
+        "Degenerate instances (J* near zero, or a warm start already optimal: neither gap "
+        "means anything there) are left out of the headline and reported on their own.",
+        "",
+        *[f"Note: {note}" for note in notes],
+        *([""] if notes else []),
+    ]
+    for budget in dict.fromkeys(
+        [*summary["budget"], *degenerate["budget"], *phases["budget"], *paired["budget"]]
+    ):
+        lines += [f"## budget {budget}", ""]
+        rows = summary[summary["budget"] == budget]
+        if len(rows):
+            lines += [
+                "| rank | optimizer | instances | trials | median normalised gap [95 % CI] "
+                "| median relative gap [95 % CI] | success (normalised gap) "
+                f"{SUCCESS_TARGETS[0]:.0e} | {targets} | median evaluations "
+                "| solve time median (ms) | sgm, failures charged (ms) |",
+                "|" + "---|" * (9 + len(SUCCESS_TARGETS)),
+            ]
+            for _, r in rows.iterrows():
+                success = " | ".join(_share(r[success_column(t)]) for t in SUCCESS_TARGETS)
+                lines.append(
+                    f"| {r['rank']} | {r['optimizer']} | {r['instances']} | {r['trials']} | "
+                    f"{_g(r['norm_gap_median'])} [{_g(r['norm_gap_ci_low'])}, "
+                    f"{_g(r['norm_gap_ci_high'])}] | {_g(r['gap_median'])} "
+                    f"[{_g(r['gap_ci_low'])}, {_g(r['gap_ci_high'])}] | {success} | "
+                    f"{_g(r['nfev_median'], '.0f')} | {_g(1e3 * r['solve_time_median_s'], '.2f')} "
+                    f"| {_g(1e3 * r['solve_time_sgm_s'], '.1f')} |"
+                )
+            lines.append("")
+        else:
+            lines += ["No non-degenerate instance was solved at this budget.", ""]
+        lines += _degenerate_section(degenerate[degenerate["budget"] == budget])
+        lines += _phase_section(phases[phases["budget"] == budget])
+        lines += _paired_section(paired[paired["budget"] == budget])
+    return "\n".join(lines)
+
+
+def _degenerate_section(rows: pd.DataFrame) -> list[str]:
+    lines = ["### Degenerate instances (left out of the headline)", ""]
+    if rows.empty:
+        return [*lines, "None solved.", ""]
+    lines += [
+        "Per optimiser: its degenerate problems, the share of them on which it returns the warm "
+        f"start's cost or better (to {WARM_TOLERANCE:g} relative), and the median |f - J*| "
+        "(absolute, in cost units).",
+        "",
+        "| optimizer | instances | trials | warm-start cost or better | median abs(f - J*) |",
+        "|---|---|---|---|---|",
+    ]
+    for _, r in rows.iterrows():
+        lines.append(
+            f"| {r['optimizer']} | {r['instances']} | {r['trials']} | "
+            f"{_share(r['warm_or_better_share'])} | {_g(r['abs_error_median'])} |"
+        )
+    return [*lines, ""]
+
+
+def _phase_section(rows: pd.DataFrame) -> list[str]:
+    if rows.empty:
+        return []
+    lines = [
+        "### Median normalised gap per phase of the loop",
+        "",
+        "Non-degenerate problems of each phase (their number in brackets).",
+        "",
+        "| optimizer | " + " | ".join(PHASES) + " |",
+        "|---|" + "---|" * len(PHASES),
+    ]
+    for optimizer, mine in rows.groupby("optimizer", sort=False):
+        cells = []
+        for phase in PHASES:
+            row = mine[mine["phase"] == phase].iloc[0]
+            cells.append(f"{_g(row['norm_gap_median'])} ({row['instances']})")
+        lines.append(f"| {optimizer} | " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
+def _paired_section(rows: pd.DataFrame) -> list[str]:
+    if rows.empty:
+        return []
+    lines = [
+        "### Paired comparisons of the normalised gap",
+        "",
+        "Paired by problem (each averaged over its trials). Wilcoxon signed-rank, two-sided, "
+        "Holm-adjusted within each kind of comparison at this budget; A12 = P(x > y) + "
+        "P(x = y) / 2 of the normalised gap (below 0.5: x leaves less).",
+        "",
+        "| comparison | x | y | pairs | median x | median y | x lower / higher / tied "
+        "| p | p Holm | A12 | reading |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for _, r in rows.iterrows():
+        lines.append(
+            f"| {r['comparison']} | {r['x']} | {r['y']} | {r['pairs']} | "
+            f"{_g(r['x_norm_gap_median'])} | {_g(r['y_norm_gap_median'])} | "
+            f"{r['x_lower']} / {r['x_higher']} / {r['ties']} | {_p(r['p'])} | "
+            f"{_p(r['p_holm'])}{' *' if r['significant'] else ''} | {_g(r['a12'], '.2f')} | "
+            f"{r['reading']} |"
+        )
+    return [*lines, ""]
+
+
+def _notes(scores: pd.DataFrame) -> list[str]:
+    within, across = repeated_problems(scores)
+    notes = []
+    if within:
+        notes.append(
+            f"{within} score rows repeat the problem (content hash) of another row of their run "
+            "(a problem drawn twice into the library: v1 has such repeats, v2 has none); each "
+            "problem is counted once, its repeats averaged."
+        )
+    if across:
+        notes.append(
+            f"{across} (optimizer, budget, seed, problem) were solved by more than one run "
+            "(runs over overlapping splits or libraries); each problem is counted once, its "
+            "solves averaged."
+        )
+    return notes
+
+
+def _library_label(scores: pd.DataFrame) -> str:
+    parts = []
+    for library, rows in scores.groupby("library", sort=True):
+        splits = ", ".join(sorted(rows["run_split"].astype(str).unique()))
+        parts.append(f"{library} (split {splits})")
+    return "; ".join(parts)
+
+
+def write_score_report(scores: pd.DataFrame, folder: Path, *, figures: bool = True) -> str:
+    """Write every score file into ``folder``; returns the Markdown leaderboard. Raises
+    :class:`~formation_bench.experiments.errors.StoreError` when runs were stored
+    in an older score format."""
+    check_score_format(scores, "a report")
+    folder.mkdir(parents=True, exist_ok=True)
+    summary = summary_table(scores)
+    degenerate = degenerate_table(scores)
+    phases = phase_table(scores)
+    paired = paired_table(scores)
+    summary.to_csv(folder / "score_summary.csv", index=False)
+    degenerate.to_csv(folder / "score_degenerate.csv", index=False)
+    phases.to_csv(folder / "score_phases.csv", index=False)
+    paired.to_csv(folder / "score_paired.csv", index=False)
+    ert_table(scores).to_csv(folder / "score_ert.csv", index=False)
+    profile = profile_table(scores)
+    profile.to_csv(folder / "score_profile.csv", index=False)
+    markdown = to_markdown(
+        summary,
+        degenerate,
+        phases,
+        paired,
+        library=_library_label(scores),
+        notes=_notes(scores),
+    )
+    (folder / "score.md").write_text(markdown)
+    if figures:
+        _figures(scores, profile, folder / "figures")
+    return markdown
+
+
+def _figures(scores: pd.DataFrame, profile: pd.DataFrame, folder: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    from formation_bench.analysis.figures import score_ecdf_figure, score_profile_figure
+
+    folder.mkdir(parents=True, exist_ok=True)
+    ecdf = score_ecdf_figure(ecdf_curves(scores))
+    ecdf.suptitle(
+        f"targets {TARGETS[0]:.0e} .. {TARGETS[-1]:.0e} of the normalised gap\n"
+        "(f - J*) / (f_warm - J*), non-degenerate instances",
+        fontsize=9,
+    )
+    profile_figure = score_profile_figure(profile)
+    for axes in profile_figure.axes:
+        axes.set_ylabel(f"share within tau (normalised gap <= {FAILURE_GAP:g})")
+    for name, figure in (("score_ecdf.png", ecdf), ("score_profile.png", profile_figure)):
+        figure.savefig(folder / name, dpi=120)
+        plt.close(figure)

@@ -1,0 +1,97 @@
+"""Each optimiser variant against the configuration it varies, paired by seed.
+
+A registered variant named ``<base><suffix>`` (for example ``pso-warm``, which starts part
+of its population around the warm start) is compared with ``<base>`` (``pso``) wherever a
+block of the results (scenario, trigger, budget) holds both, on every headline metric the
+runs carry: median of each, the median of the paired differences, Wilcoxon signed-rank
+(two-sided) Holm-adjusted over the pairs of a block and metric, and the Vargha-Delaney A12
+= P(variant > base) (below 0.5: the variant's values are lower). The closed-loop
+counterpart of the score report's paired table.
+"""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from formation_bench.analysis import stats
+from formation_bench.analysis.report import HEADLINE_METRICS, _num, _p, prepare
+
+VARIANT_SUFFIXES = ("-warm",)
+"""Name endings of the variants compared with the configuration they vary."""
+BLOCK = ["scenario", "trigger", "budget"]
+
+
+def variant_pairs(levels: list[str], suffixes: tuple[str, ...] = VARIANT_SUFFIXES) -> list:
+    """``(variant, base)`` for every level whose base (its name without the suffix) is a
+    level too, in the order of ``levels``."""
+    present = set(levels)
+    return [
+        (level, level[: -len(suffix)])
+        for level in levels
+        for suffix in suffixes
+        if level.endswith(suffix) and level[: -len(suffix)] in present
+    ]
+
+
+def pair_table(results: pd.DataFrame, metrics: tuple[str, ...] = HEADLINE_METRICS) -> pd.DataFrame:
+    """One row per block, metric and (variant, base) pair; empty when no pair applies."""
+    frame = prepare(results)
+    metrics = tuple(m for m in metrics if m in frame)
+    rows = []
+    for block_values, block in frame.groupby(BLOCK, sort=False):
+        pairs = variant_pairs(sorted(block["optimizer"].unique()))
+        for metric in metrics:
+            table = block.pivot_table(
+                index="seed", columns="optimizer", values=metric, aggfunc="first"
+            )
+            found = []
+            for variant, base in pairs:
+                pair = table[[variant, base]].dropna()
+                compared = stats.paired_comparison(pair[variant], pair[base])
+                found.append(
+                    {
+                        **dict(zip(BLOCK, block_values, strict=True)),
+                        "metric": metric,
+                        "variant": variant,
+                        "base": base,
+                        "n_pairs": compared.pop("pairs"),
+                        "variant_median": compared.pop("x_median"),
+                        "base_median": compared.pop("y_median"),
+                        "variant_lower": compared.pop("x_lower"),
+                        "variant_higher": compared.pop("x_higher"),
+                        **compared,
+                    }
+                )
+            stats.holm_family(found)
+            rows.extend(found)
+    return pd.DataFrame(rows)
+
+
+def to_markdown(table: pd.DataFrame) -> str:
+    """The pairs as Markdown, one table per block and metric; empty text when none apply."""
+    if table.empty:
+        return ""
+    lines = [
+        "## Variants against the configuration they vary",
+        "",
+        "Each `<name>-warm` variant against `<name>`, paired by seed: medians, the median of "
+        "the paired differences, Wilcoxon signed-rank (two-sided) Holm-adjusted over the pairs "
+        "of a block and metric, A12 = P(variant > base) (< 0.5: lower values than the base).",
+        "",
+    ]
+    for (scenario, trigger, budget, metric), rows in table.groupby([*BLOCK, "metric"], sort=False):
+        lines += [f"### {metric}: scenario {scenario}, trigger {trigger}, {budget}", ""]
+        lines += [
+            "| variant | base | pairs | variant median | base median | median difference "
+            "| p (Holm) | A12 |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for row in rows.itertuples():
+            mark = "*" if row.significant else ""
+            lines.append(
+                f"| {row.variant} | {row.base} | {row.n_pairs} | {_num(row.variant_median)} "
+                f"| {_num(row.base_median)} | {_num(row.median_difference)} "
+                f"| {_p(row.p_holm)}{mark} | {row.a12:.2f} |"
+            )
+        lines.append("")
+    return "\n".join(lines).rstrip() + "\n"

@@ -1,0 +1,687 @@
+"""The ``formation-bench`` command line.
+
+Every bad option, unknown name or out-of-range field ends in a one-line
+error naming it and what is allowed, exit code 2, no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import contextlib
+import dataclasses
+import os
+import re
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, NoReturn
+
+# first: Ctrl-C during the imports below ends the command in one line
+from formation_bench.cli import command_start  # isort: skip
+
+import formation_bench
+from formation_bench import plugins
+from formation_bench.analysis.paper import (
+    comparison_rows,
+    format_seed_table,
+    format_table,
+)
+from formation_bench.mpc.loop import ProgressCallback
+from formation_bench.mpc.reference import REFERENCE_PATHS
+from formation_bench.mpc.scenario import SCENARIOS, Scenario, get_scenario
+from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
+from formation_bench.pipeline.checks import (
+    MAX_SEED,
+    LimitError,
+    check_jobs,
+    check_out_path,
+    check_run,
+    check_seed_count,
+)
+from formation_bench.pipeline.interrupts import is_interrupt
+from formation_bench.pipeline.outputs import write_metrics, write_text, write_trace
+from formation_bench.pipeline.runner import (
+    RunOutcome,
+    execute,
+    kernels_cached,
+    write_figures,
+    write_trigger_figure,
+)
+from formation_bench.pipeline.spec import RunSpec, with_deadline
+from formation_bench.pipeline.staging import OutputError, staged_folder
+
+DEFAULT_OPTIMIZER = "modified-bso"
+
+EXAMPLES = """\
+examples:
+  formation-bench reproduce                      the paper scenario, metrics beside the paper's
+  formation-bench list                           registered optimizers and scenarios
+  formation-bench run --optimizer pso --no-trigger --seed 3 --out out/pso
+  formation-bench run --optimizer modified-bso --set scenario.reference=s-curve --out out/s
+  formation-bench sweep paper --out results/paper --jobs 2
+  formation-bench report results/paper
+  formation-bench score --optimizer pso --budgets default 1200 --seeds 0 1 --out results/score
+  formation-bench --plugin my_search.py run --optimizer my-random-search --out out/mine
+"""
+
+
+class UsageError(Exception):
+    """A problem with what the user asked for (reported in one line, exit 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def parse_value(text: str) -> Any:
+    """A ``--set`` value: a Python literal (number, bool, tuple, ...) or else the plain string."""
+    lowered = text.strip().lower()
+    if lowered in ("true", "false"):
+        return lowered == "true"
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
+def _assignment(assignment: str) -> tuple[str, str, str, str]:
+    """``[TARGET.]FIELD=VALUE`` as ``(name as written, target or '', field, raw value)``."""
+    name, sep, raw = assignment.partition("=")
+    if not sep or not name:
+        raise UsageError(f"--set expects FIELD=VALUE, got {assignment!r}")
+    target, dot, field = name.partition(".")
+    if not dot:
+        target, field = "", name
+    return name, target, field, raw
+
+
+def split_overrides(
+    assignments: list[str], scenario: Scenario, optimizer: Optimizer
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Route ``FIELD=VALUE`` pairs to the scenario or the optimiser.
+
+    ``scenario.FIELD`` and ``optimizer.FIELD`` say where explicitly; a bare
+    field goes to whichever has it.
+    """
+    scenario_fields = {f.name for f in dataclasses.fields(scenario)}
+    optimizer_fields = {f.name for f in dataclasses.fields(optimizer)}  # type: ignore[arg-type]
+    to_scenario: dict[str, Any] = {}
+    to_optimizer: dict[str, Any] = {}
+    for assignment in assignments:
+        name, target, field, raw = _assignment(assignment)
+        if target not in ("", "scenario", "optimizer"):
+            raise UsageError(f"--set {name}: prefix must be 'scenario.' or 'optimizer.'")
+        in_scenario, in_optimizer = field in scenario_fields, field in optimizer_fields
+        if target == "scenario" or (not target and in_scenario and not in_optimizer):
+            if not in_scenario:
+                allowed = ", ".join(sorted(scenario_fields))
+                raise UsageError(f"--set {name}: unknown scenario field; fields: {allowed}")
+            to_scenario[field] = parse_value(raw)
+        elif target == "optimizer" or (not target and in_optimizer and not in_scenario):
+            if not in_optimizer:
+                allowed = ", ".join(sorted(optimizer_fields))
+                raise UsageError(f"--set {name}: unknown optimizer field; fields: {allowed}")
+            to_optimizer[field] = parse_value(raw)
+        elif in_scenario and in_optimizer:
+            raise UsageError(f"--set {name}: ambiguous, write scenario.{name} or optimizer.{name}")
+        else:
+            raise UsageError(
+                f"--set {name}: unknown field; scenario fields: "
+                f"{', '.join(sorted(scenario_fields))}; "
+                f"optimizer fields: {', '.join(sorted(optimizer_fields))}"
+            )
+    return to_scenario, to_optimizer
+
+
+def _build(args: argparse.Namespace) -> tuple[Scenario, Optimizer]:
+    if args.optimizer not in OPTIMIZERS:
+        allowed = ", ".join(sorted(OPTIMIZERS))
+        raise UsageError(f"--optimizer: unknown name {args.optimizer!r}; allowed: {allowed}")
+    if args.scenario not in SCENARIOS:
+        raise UsageError(
+            f"--scenario: unknown name {args.scenario!r}; allowed: {', '.join(sorted(SCENARIOS))}"
+        )
+    scenario, optimizer = get_scenario(args.scenario), get_optimizer(args.optimizer)
+    to_scenario, to_optimizer = split_overrides(args.set or [], scenario, optimizer)
+    try:
+        return (
+            get_scenario(args.scenario, **to_scenario),
+            get_optimizer(args.optimizer, **to_optimizer),
+        )
+    except (ValueError, TypeError, KeyError) as err:
+        raise UsageError(_set_error(_message(err), args.set or [])) from None
+
+
+def configured_optimizer(name: str, assignments: list[str]) -> tuple[Optimizer, dict[str, Any]]:
+    """The registered optimizer ``name`` with ``--set FIELD=VALUE`` overrides of its own
+    fields (for commands without a scenario); returns it and the overrides."""
+    if name not in OPTIMIZERS:
+        allowed = ", ".join(sorted(OPTIMIZERS))
+        raise UsageError(f"--optimizer: unknown name {name!r}; allowed: {allowed}")
+    fields = sorted(f.name for f in dataclasses.fields(get_optimizer(name)))  # type: ignore[arg-type]
+    listed = ", ".join(fields) or "none"
+    to_optimizer: dict[str, Any] = {}
+    for assignment in assignments:
+        written, target, field, raw = _assignment(assignment)
+        if target not in ("", "optimizer"):
+            raise UsageError(
+                f"--set {written}: only fields of optimizer {name!r} apply here (this command "
+                f"has no scenario); its fields: {listed}"
+            )
+        if field not in fields:
+            raise UsageError(
+                f"--set {written}: unknown field of optimizer {name!r}; its fields: {listed}"
+            )
+        to_optimizer[field] = parse_value(raw)
+    try:
+        return get_optimizer(name, **to_optimizer), to_optimizer
+    except (ValueError, TypeError, KeyError) as err:
+        raise UsageError(_set_error(_message(err), assignments)) from None
+
+
+def _message(err: BaseException) -> str:
+    return str(err.args[0]) if err.args else str(err)
+
+
+# a field check says "Class.field must be ..., got ..."
+_FIELD_ERROR = re.compile(r"(?P<cls>\w+)\.(?P<field>\w+) must be (?P<rest>.*)", re.DOTALL)
+
+
+def _set_error(message: str, assignments: list[str]) -> str:
+    """A field's error named as the user wrote it: ``--set FIELD: expected ..., got ...``."""
+    match = _FIELD_ERROR.fullmatch(message)
+    if match is None:
+        return f"--set: {message}"
+    field = match["field"]
+    kind = "scenario" if match["cls"] == "Scenario" else "optimizer"
+    written = field
+    for assignment in assignments:
+        name = assignment.partition("=")[0].strip()
+        if name in (field, f"{kind}.{field}"):
+            written = name
+    return f"--set {written}: expected {match['rest']}"
+
+
+def _summary(record: dict[str, Any]) -> str:
+    pairs = [c for c in record if c.startswith("distance_error_max_m_d")]
+    distances = " ".join(
+        f"{c.removeprefix('distance_error_max_m_')}={record[c]:.3f}" for c in pairs
+    )
+    if not pairs:  # a swarm: summarised over the communication graph's pairs
+        distances = (
+            f"{record['distance_error_max_m_max']:.3f} (RMS {record['distance_error_rms_m']:.3f})"
+        )
+    solves = [record[c] for c in record if c.startswith("solves_uav")]
+    if len(solves) > 5:
+        solves = f"{record['solves_total']} over {len(solves)} UAVs"
+    extras = []
+    if record["collisions"] or record["obstacle_intrusions"]:
+        extras.append(
+            f"collisions {record['collisions']}, obstacle intrusions "
+            f"{record['obstacle_intrusions']}, min separation {record['min_separation_m']:.2f} m"
+        )
+    if record["plans_lost"] or record["plans_late"]:
+        extras.append(
+            f"plans lost {record['plans_lost']} and late {record['plans_late']} "
+            f"of {record['plans_sent']}"
+        )
+    return (
+        f"{record['optimizer']} {record['scenario']} trigger={record['trigger']} "
+        f"seed={record['seed']}: tracking max {record['tracking_error_max_m']:.3f} m, "
+        f"distance error max {distances} m, solves {solves}, "
+        + "".join(f"{extra}, " for extra in extras)
+        + f"median solve {1e3 * record['solve_time_median_s']:.2f} ms, "
+        f"wall {record['wall_time_s']:.1f} s"
+    )
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    if args.fields is not None:
+        return _list_fields(args.fields)
+    print("optimizers:")
+    for name in sorted(OPTIMIZERS):
+        print(f"  {name:<36} {OPTIMIZERS[name].description}")
+    missing = OPTIMIZERS.missing()
+    if missing:
+        print("optimizers not available here:")
+        for name, reason in sorted(missing.items()):
+            print(f"  {name:<36} {reason}")
+    print("scenarios:")
+    for name, scenario in sorted(SCENARIOS.items()):
+        print(
+            f"  {name:<36} {scenario.n_uav} UAVs, reference '{scenario.reference}', "
+            f"{scenario.n_steps} instants of {scenario.period_s:g} s"
+        )
+    print("reference paths: " + ", ".join(sorted(REFERENCE_PATHS)))
+    return 0
+
+
+def _list_fields(name: str) -> int:
+    """The settable fields of a registered optimiser or scenario, as ``--set`` takes them."""
+    from formation_bench.fields import describe_fields
+
+    if name in OPTIMIZERS:
+        kind, obj = "optimizer", OPTIMIZERS[name].optimizer
+    elif name in SCENARIOS:
+        kind, obj = "scenario", SCENARIOS[name]
+    else:
+        allowed = ", ".join([*sorted(OPTIMIZERS), *sorted(SCENARIOS)])
+        raise UsageError(f"--fields: unknown optimizer or scenario {name!r}; allowed: {allowed}")
+    print(f"{kind} {name} ({type(obj).__name__}); set with --set {kind}.FIELD=VALUE")
+    for info in describe_fields(obj):
+        print(f"  {info.name} = {_shown(info.value)}  ({info.type}; {info.allowed})")
+        print(f"      {info.doc}")
+    return 0
+
+
+def _shown(value: Any) -> str:
+    import enum
+
+    if isinstance(value, enum.Enum):
+        return value.name.lower() if not isinstance(value.value, str) else value.value
+    return repr(value)
+
+
+def _budget(args: argparse.Namespace) -> Budget | None:
+    if args.max_evaluations is None and args.max_iterations is None:
+        return None
+    try:
+        return Budget(args.max_evaluations, args.max_iterations)
+    except ValueError as err:
+        raise UsageError(_message(err)) from None
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    scenario, optimizer = _build(args)
+    budget = _budget(args)
+    _check(scenario, optimizer, with_deadline(budget, args.deadline_ms, optimizer))
+    spec = RunSpec.of(
+        args.optimizer, optimizer, args.scenario, scenario,
+        trigger=args.trigger, seed=args.seed, budget=budget, deadline_ms=args.deadline_ms,
+        plugins=plugins.loaded_plugins(),
+    )  # fmt: skip
+    with _staged(args) as out:
+        _compile_notice()
+        with _progress_bar(spec.optimizer_label, scenario.n_steps, args.progress) as progress:
+            outcome = execute(spec, progress=progress)
+        record = outcome.record.to_json()
+        write_metrics(out / "metrics.json", [record])
+        write_trace(out / "trace.parquet", outcome.table)
+        if args.figures:
+            suffix = "trigger" if args.trigger else "no_trigger"
+            write_figures(outcome, out, suffix, (5, 6) if args.trigger else (3, 4))
+            write_trigger_figure(outcome, out, f"fig7_solve_instants_{suffix}.png")
+    print(_summary(record))
+    print(f"wrote {args.out}/metrics.json, trace.parquet{' and figures' if args.figures else ''}")
+    return 0
+
+
+def _check(scenario: Scenario, optimizer: Optimizer, budget: Budget | None) -> None:
+    try:
+        check_run(scenario, optimizer, budget)
+    except LimitError as err:
+        raise UsageError(str(err)) from None
+
+
+@contextlib.contextmanager
+def _staged(args: argparse.Namespace) -> Iterator[Path]:
+    """The staged output folder of a command; checked before any work starts."""
+    try:
+        with staged_folder(Path(args.out), overwrite=args.overwrite) as folder:
+            yield folder
+    except OutputError as err:
+        raise UsageError(str(err)) from None
+
+
+@contextlib.contextmanager
+def _progress_bar(label: str, total: int, show: bool | None) -> Iterator[ProgressCallback]:
+    """A progress bar on stderr (by default only on a terminal), fed by the loop's callback."""
+    if not (sys.stderr.isatty() if show is None else show):
+        yield _no_progress
+        return
+    from tqdm import tqdm
+
+    with tqdm(
+        total=total, desc=label, unit="instant", file=sys.stderr, leave=False,
+        disable=None if show is None else not show,
+    ) as bar:  # fmt: skip
+
+        def advance(done: int, total: int) -> None:
+            bar.update(done - bar.n)
+
+        yield advance
+
+
+def _no_progress(done: int, total: int) -> None:
+    pass
+
+
+def _compile_notice() -> None:
+    if not kernels_cached():
+        print(
+            "compiling numba kernels (first run only, about 15 s)...", file=sys.stderr, flush=True
+        )
+
+
+def reproduce_one(
+    seed: int, out: Path, *, figures: bool = True, progress: bool | None = None
+) -> list[dict[str, Any]]:
+    """Both paper runs (without, then with trigger) for one seed; writes outputs to ``out``
+    and returns their records."""
+    scenario = get_scenario("paper")
+    optimizer = get_optimizer(DEFAULT_OPTIMIZER)
+    outcomes: list[RunOutcome] = []
+    for trigger in (False, True):
+        spec = RunSpec.of(
+            DEFAULT_OPTIMIZER, optimizer, "paper", scenario, trigger=trigger, seed=seed
+        )
+        label = f"seed {seed}, {'with' if trigger else 'without'} trigger"
+        with _progress_bar(label, scenario.n_steps, progress) as advance:
+            outcome = execute(spec, progress=advance)
+        outcomes.append(outcome)
+        print(_summary(outcome.record.to_json()), flush=True)
+    import pyarrow as pa
+
+    records = [o.record.to_json() for o in outcomes]
+    write_metrics(out / "metrics.json", records)
+    write_trace(out / "trace.parquet", pa.concat_tables([o.table for o in outcomes]))
+    if figures:
+        write_figures(outcomes[0], out, "no_trigger", (3, 4))
+        write_figures(outcomes[1], out, "trigger", (5, 6))
+        write_trigger_figure(outcomes[1], out, "fig7_solve_instants.png")
+    return records
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    out = Path(args.out)
+    seeds = list(dict.fromkeys(args.seeds))
+    settle = get_scenario("paper").settle_time_s
+    with _staged(args) as staging:
+        _compile_notice()  # after the output checks, so a refused command prints one line
+        runs = {
+            seed: reproduce_one(
+                seed,
+                staging if len(seeds) == 1 else staging / f"seed{seed}",
+                figures=args.figures,
+                progress=args.progress,
+            )
+            for seed in seeds
+        }
+        if len(seeds) > 1:
+            table = format_seed_table({seed: comparison_rows(m) for seed, m in runs.items()})
+            write_text(staging / "summary.md", table + "\n")
+    print()
+    print(
+        f"Paper scenario, {DEFAULT_OPTIMIZER}, seed{'s' if len(seeds) > 1 else ''} "
+        f"{', '.join(map(str, seeds))} (errors after the {settle:g} s settle time):"
+    )
+    if len(seeds) == 1:
+        rows = comparison_rows(runs[seeds[0]])
+        print(format_table(rows))
+        held = sum(row["holds"] for row in rows)
+        print(f"{held} of {len(rows)} reported figures reached.")
+    else:
+        print(table)
+    from formation_bench.analysis.paper_budget import shipped_line  # pandas
+
+    print(shipped_line(DEFAULT_OPTIMIZER))
+    drawn = " and figures fig3-fig7 and separation_*" if args.figures else ""
+    print(
+        f"wrote metrics.json, trace.parquet{drawn} to {out}"
+        f"{'/seed*' if len(seeds) > 1 else ''} ({time.perf_counter() - start:.1f} s in all)"
+    )
+    return 0
+
+
+def add_output_options(command: argparse.ArgumentParser) -> None:
+    """``--figures``, ``--overwrite`` and ``--progress``, as ``run`` and ``reproduce`` take them."""
+    command.add_argument(
+        "--figures",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="draw the figures (default); --no-figures writes metrics and trace only",
+    )
+    command.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a non-empty output folder (as a whole) instead of refusing",
+    )
+    command.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: only on a terminal)",
+    )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="formation-bench",
+        description="Optimisers inside a distributed MPC of UAV formations: reproduce the "
+        "paper, run closed loops, sweep suites and report their statistics.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--version", action="version", version=f"formation-bench {formation_bench.__version__}"
+    )
+    parser.add_argument(
+        "--plugin",
+        action="append",
+        default=[],
+        metavar="MODULE_OR_FILE",
+        help="import a module (dotted name) or a .py file that registers optimizers or "
+        "scenarios before the command runs (repeatable; sweep workers load it too)",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    reproduce = sub.add_parser(
+        "reproduce", help="the paper scenario with the modified BSO, without and with trigger"
+    )
+    reproduce.add_argument(
+        "--out", default="results/reproduce", help="output folder (default: results/reproduce)"
+    )
+    reproduce.add_argument(
+        "--seed",
+        "--seeds",
+        dest="seeds",
+        type=_seed,
+        nargs="+",
+        default=[0],
+        help="run seed(s), integers >= 0 (default 0); several seeds write DIR/seedN/ each "
+        "and a table of every figure over the seeds",
+    )
+    add_output_options(reproduce)
+    reproduce.set_defaults(func=cmd_reproduce)
+
+    run = sub.add_parser("run", help="one closed-loop run")
+    run.add_argument("--optimizer", required=True, help="registered optimizer name (see 'list')")
+    run.add_argument(
+        "--scenario", default="paper", help="registered scenario name (default: paper)"
+    )
+    run.add_argument(
+        "--trigger",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="use the event trigger (default) or solve at every instant",
+    )
+    run.add_argument("--seed", type=_seed, default=0, help="run seed, integer >= 0 (default 0)")
+    run.add_argument(
+        "--set",
+        action="append",
+        metavar="FIELD=VALUE",
+        help="override a scenario or optimizer field (repeatable); "
+        "prefix with scenario. or optimizer. if ambiguous",
+    )
+    run.add_argument(
+        "--max-evaluations",
+        type=_positive,
+        metavar="N",
+        help="per-solve evaluation budget (default: the optimizer's own budget)",
+    )
+    run.add_argument(
+        "--max-iterations",
+        type=_non_negative,
+        metavar="N",
+        help="per-solve iteration budget (default: the optimizer's own budget)",
+    )
+    run.add_argument(
+        "--deadline-ms",
+        type=_deadline,
+        metavar="MS",
+        help="per-solve wall-clock deadline in milliseconds: a solve returns its best point "
+        "so far when it passes (results then depend on the machine's speed)",
+    )
+    run.add_argument("--out", required=True, help="output folder")
+    add_output_options(run)
+    run.set_defaults(func=cmd_run)
+
+    listing = sub.add_parser("list", help="registered optimizers and scenarios")
+    listing.add_argument(
+        "--fields",
+        metavar="NAME",
+        help="the settable fields of one optimizer or scenario: value, allowed values, meaning",
+    )
+    listing.set_defaults(func=cmd_list)
+
+    from formation_bench.cli.sweep_commands import add_sweep_commands  # sweep, report
+
+    add_sweep_commands(sub)
+    return parser
+
+
+def _integer(text: str, low: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {value}")
+    return value
+
+
+def _positive(text: str) -> int:
+    return _integer(text, 1)
+
+
+def _non_negative(text: str) -> int:
+    return _integer(text, 0)
+
+
+def _deadline(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be a number of milliseconds > 0, got {text!r}"
+        ) from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a number of milliseconds > 0, got {text}")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be an integer in [0, 2**128 - 1], got {value}")
+    return value
+
+
+STAGED_OUTPUT_COMMANDS = ("run", "reproduce", "report", "export-ioh")
+"""Commands whose --out is written whole beside it, then renamed into place (the others
+resume into their folder)."""
+
+
+def _check_arguments(args: argparse.Namespace) -> None:
+    """Checks that span a whole option or several (argparse checks each value on its own)."""
+    try:
+        out = getattr(args, "out", None)
+        if out is not None:
+            check_out_path(out, staged=args.command in STAGED_OUTPUT_COMMANDS)
+        if getattr(args, "results", None) is not None:
+            check_out_path(args.results, "DIR", staged=False)
+        if args.command in ("reproduce", "score"):
+            check_seed_count(len(set(args.seeds)))
+        if args.command in ("sweep", "score") and getattr(args, "scheduler", None) is None:
+            check_jobs(args.jobs)
+    except LimitError as err:
+        raise UsageError(str(err)) from None
+
+
+def _take_over_interrupts() -> Any:
+    """Make Ctrl-C end the command in one line; returns the handler to restore.
+
+    The first Ctrl-C raises KeyboardInterrupt, as Python's own handler does. A second press
+    within :data:`REPEAT_GRACE_S` of it is dropped, so that it cannot cut short the clean-up
+    the first one started (removing a half-written folder) nor turn the one line into a
+    traceback. A later press raises again: Python runs a signal handler wherever the main
+    thread is, and a KeyboardInterrupt raised inside a weakref callback or a ``__del__`` is
+    printed and discarded, so ignoring every press after the first could leave the command
+    running for good. A process that ignores Ctrl-C (started in the background) keeps
+    ignoring it.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    previous = signal.getsignal(signal.SIGINT)
+    if previous in (signal.default_int_handler, command_start.interrupted_while_starting):
+        _first_press.clear()
+        signal.signal(signal.SIGINT, _interrupt_once)
+        return previous
+    return None
+
+
+REPEAT_GRACE_S = 2.0
+"""How long after a first Ctrl-C a second one counts as the same request to stop."""
+_first_press: list[float] = []
+
+
+def _interrupt_once(signum: int, frame: object) -> None:
+    now = time.monotonic()
+    if _first_press and now - _first_press[0] < REPEAT_GRACE_S:
+        return
+    _first_press[:] = [now]
+    raise KeyboardInterrupt
+
+
+def main(argv: list[str] | None = None) -> int:
+    previous = _take_over_interrupts()
+    command = "formation-bench"
+    try:
+        args = build_parser().parse_args(argv)
+        command = f"formation-bench {args.command}"
+        _check_arguments(args)
+        plugins.load_plugins(args.plugin)
+        return args.func(args)
+    except (UsageError, plugins.PluginError) as err:
+        print(f"{command}: error: {err}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, SystemError) as err:
+        if not is_interrupt(err):
+            raise
+        if previous is not None:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        print(f"{command}: interrupted", file=sys.stderr)
+        return command_start.INTERRUPTED_EXIT
+    except BrokenPipeError:  # output piped into e.g. `head`, which stopped reading
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    finally:
+        if previous is not None:
+            # the command itself exits next, and a Ctrl-C then must not print a traceback
+            # either; a caller of main() in its own process gets its handler back
+            signal.signal(
+                signal.SIGINT, signal.SIG_IGN if command_start.is_the_command() else previous
+            )
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,466 @@
+"""The ``sweep`` and ``report`` subcommands of ``formation-bench``.
+
+Errors follow the rest of the command line: one line naming the field and the
+allowed values, exit code 2, no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from formation_bench.cli.main import _deadline, _seed, configured_optimizer
+from formation_bench.experiments.errors import StoreError, SweepError
+from formation_bench.experiments.executors import DEFAULT_WORKER_TIMEOUT_S
+from formation_bench.experiments.suite import (
+    SuiteError,
+    load_suite,
+    shipped_suites,
+)
+from formation_bench.experiments.sweep import DEFAULT_JOBS, plan, run_sweep
+from formation_bench.instances.library import LIBRARY_VERSIONS, SHIPPED_VERSION
+from formation_bench.pipeline.checks import (
+    JOBS_PER_CPU,
+    LimitError,
+    check_optimizer,
+    check_scheduler_address,
+)
+from formation_bench.pipeline.interrupts import is_interrupt
+from formation_bench.pipeline.staging import (
+    OutputError,
+    check_output_folder,
+    staged_folder,
+    storage_advice,
+    storage_problem,
+)
+from formation_bench.plugins import PluginError
+
+
+def usage_errors() -> tuple[type[Exception], ...]:
+    """The errors a command reports in one line; the module of the last one reads and writes
+    Parquet with pandas, so it is imported only when a command fails."""
+    from formation_bench.analysis.ioh_export import ExportError
+
+    return (SuiteError, SweepError, StoreError, PluginError, LimitError, ExportError)
+
+
+def _jobs(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {value}")
+    return value
+
+
+def _worker_timeout(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}")
+    return value
+
+
+def _scheduler(text: str) -> str:
+    try:
+        return check_scheduler_address(text)
+    except LimitError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _guarded(command: str, func: Callable[[argparse.Namespace], int]):
+    def run(args: argparse.Namespace) -> int:
+        try:
+            return func(args)
+        except (KeyboardInterrupt, SystemError):
+            raise  # for main(); matching usage_errors() would import pandas mid-interrupt
+        except ImportError as err:
+            if is_interrupt(err):  # an import cut short by Ctrl-C (pandas fails so)
+                raise KeyboardInterrupt from None
+            raise
+        except usage_errors() as err:
+            print(f"formation-bench {command}: error: {err}", file=sys.stderr)
+            return 2
+        except BrokenPipeError:  # output piped into e.g. `head`, which stopped reading
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 0
+        except OSError as err:  # a write the file system refused, where no caller named more
+            problem = storage_problem(err)
+            if problem is None:
+                raise
+            print(
+                f"formation-bench {command}: error: {problem}; {storage_advice(err)}",
+                file=sys.stderr,
+            )
+            return 2
+
+    return run
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    try:
+        # a results folder is resumed, so only its kind and place are checked here
+        check_output_folder(out, overwrite=True)
+    except OutputError as err:
+        raise SweepError(str(err)) from None
+    suite = load_suite(args.suite)
+    if args.rebuild_manifest:
+        from formation_bench.experiments.manifest import rebuild_manifest
+
+        print(rebuild_manifest(suite, out))
+        return 0
+    if args.dry_run:
+        from formation_bench.experiments.store import ResultStore
+
+        pending, summary = plan(suite, ResultStore(args.out))
+        print(
+            f"suite {suite.name}: {summary.total} runs, {summary.already} stored, "
+            f"{len(pending)} to run"
+        )
+        for spec in pending:
+            print(f"  {spec.key}  {spec.describe()}")
+            # what repeats this run exactly, on its own
+            print(f"    {spec.run_command(out=f'repeat-{spec.key}')}")
+        return 0
+    summary = run_sweep(
+        suite,
+        args.out,
+        jobs=args.jobs,
+        scheduler=args.scheduler,
+        worker_timeout_s=args.worker_timeout,
+        progress=args.progress,
+        allow_suite_change=args.allow_suite_change,
+    )
+    return summary.exit_code
+
+
+def _score_budget(text: str) -> tuple[int | None, int | None]:
+    if text == "default":
+        return (None, None)
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(
+            f"must be 'default' or a number of evaluations >= 1, got {text!r}"
+        )
+    return (value, None)
+
+
+def cmd_score(args: argparse.Namespace) -> int:
+    from formation_bench.experiments.score import (
+        ScoreError,
+        run_scores,
+        score_runs,
+        stored_keys,
+    )
+    from formation_bench.instances.library import LibraryError, load_shipped, shipped
+    from formation_bench.plugins import loaded_plugins
+
+    out = Path(args.out)
+    try:
+        check_output_folder(out, overwrite=True)  # score runs resume, like a sweep
+    except OutputError as err:
+        raise SweepError(str(err)) from None
+    _, overrides = configured_optimizer(args.optimizer, args.set or [])
+    try:
+        library = shipped() if args.library is None else load_shipped(args.library)
+        runs = score_runs(
+            args.optimizer,
+            overrides,
+            list(dict.fromkeys(args.budgets)),
+            list(dict.fromkeys(args.seeds)),
+            deadline_ms=args.deadline_ms,
+            library=library,
+            split=args.split,
+            plugins=loaded_plugins(),
+        )
+    except LibraryError as err:
+        raise SweepError(f"--library: {err}") from None
+    except ScoreError as err:
+        raise SweepError(str(err)) from None
+    optimizer = runs[0].optimizer()
+    for run in {run.budget_label: run for run in runs}.values():  # each budget once
+        check_optimizer(optimizer, run.budget(optimizer))  # the limits run and sweep apply
+    start = time.perf_counter()
+    done = 0
+    try:
+        for run in run_scores(runs, out, jobs=args.jobs):
+            done += 1
+            print(
+                f"  stored {run.optimizer_label} / {run.budget_label} / seed {run.seed}", flush=True
+            )
+    except OSError as err:
+        problem = storage_problem(err, where=out / "score")
+        if problem is None:
+            raise
+        kept = len(stored_keys(out) & {run.key for run in runs})  # counted from the folder
+        raise SweepError(
+            f"--out: {problem}; {kept} of {len(runs)} score runs stored in {out / 'score'} and "
+            f"intact; {storage_advice(err)}"
+        ) from None
+    print(
+        f"{len(runs)} score runs ({done} new) of {runs[0].optimizer_label} on library "
+        f"{runs[0].library_version}, split {runs[0].split}, in {out}/score "
+        f"({time.perf_counter() - start:.1f} s); formation-bench report {out} writes the "
+        "statistics"
+    )
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    # the statistics and plotting libraries are imported only by the command that uses them
+    from formation_bench.analysis.report import ReportError, make_report
+
+    start = time.perf_counter()
+    results = Path(args.results)
+    has_runs, has_scores = (results / "runs").is_dir(), (results / "score").is_dir()
+    if not has_runs and not has_scores:
+        raise StoreError(
+            f"{results} holds no results (no runs/ or score/ folder); run a sweep or score "
+            "into it first"
+        )
+    folder = Path(args.out) if args.out is not None else results / "report"
+    written = []
+    try:
+        with staged_folder(folder, overwrite=args.overwrite) as staging:
+            if has_runs:
+                _, headline, _ = make_report(
+                    results,
+                    staging,
+                    baseline=args.baseline,
+                    compare=args.compare,
+                    figures=args.figures,
+                )
+                print(headline)
+                written.append(
+                    "report.md, summary.csv, wilcoxon.csv, friedman.csv, ranks.csv, nemenyi.csv"
+                )
+            if has_scores:
+                from formation_bench.analysis.score_report import write_score_report
+                from formation_bench.experiments.score import load_scores
+
+                print(write_score_report(load_scores(results), staging, figures=args.figures))
+                written.append(
+                    "score.md, score_summary.csv, score_degenerate.csv, score_phases.csv, "
+                    "score_paired.csv, score_ert.csv, score_profile.csv"
+                )
+    except (ReportError, OutputError) as err:
+        print(f"formation-bench report: error: {err}", file=sys.stderr)
+        return 2
+    print(
+        f"wrote {folder}/{', '.join(written)}{' and figures/' if args.figures else ''} "
+        f"({time.perf_counter() - start:.1f} s)"
+    )
+    return 0
+
+
+def cmd_export_ioh(args: argparse.Namespace) -> int:
+    from formation_bench.analysis.ioh_export import ExportError, export_ioh
+    from formation_bench.experiments.score import load_scores
+
+    results = Path(args.results)
+    if not (results / "score").is_dir():
+        raise StoreError(f"{results} holds no score runs (no score/ folder); run 'score' first")
+    folder = Path(args.out) if args.out is not None else results / "ioh"
+    archive = folder.with_name(folder.name + ".zip")
+    if args.zip and archive.is_dir():
+        raise ExportError(f"--zip: {archive} is a folder, not a file")
+    if args.zip and archive.exists() and not args.overwrite:
+        raise ExportError(f"--zip: {archive} exists; add --overwrite to replace it")
+    # damaged score files are named as they are read; files used unverified once it is written
+    notices: list[str] = []
+    scores = load_scores(results, notice=notices.append)
+    try:
+        with staged_folder(folder, overwrite=args.overwrite) as staging:
+            written = export_ioh(scores, staging)
+    except OutputError as err:
+        raise ExportError(str(err)) from None
+    if args.zip:
+        _zip_folder(folder, archive)
+    left_out = int(scores["degenerate"].astype(bool).sum())
+    print(
+        f"wrote {folder}{' and ' + str(archive) if args.zip else ''}: {len(written)} "
+        f"algorithms, {sum(written.values())} runs"
+        + (f" ({left_out} solves of degenerate instances left out)" if left_out else "")
+        + "; raw_y is the normalised gap (f - J*) / (f_warm - J*); IOHanalyzer reads the "
+        "folder (DataSetList) or the zip (upload)"
+    )
+    for line in notices:
+        print(line, file=sys.stderr)
+    return 0
+
+
+def _zip_folder(folder: Path, archive: Path) -> None:
+    """The finished export as one zip, which appears whole or not at all."""
+    import io
+    import zipfile
+
+    from formation_bench.pipeline.outputs import atomic_write_bytes
+
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zipped:
+        for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+            zipped.write(path, path.relative_to(folder).as_posix())
+    atomic_write_bytes(archive, buffer.getvalue())
+
+
+def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
+    """Add ``sweep``, ``score``, ``report`` and ``export-ioh`` to the subcommands."""
+    sweep = sub.add_parser(
+        "sweep",
+        help="run a suite of closed-loop runs (resumable) into a results folder",
+        description="Run every run of a suite that is not already stored in --out.",
+    )
+    sweep.add_argument(
+        "suite",
+        metavar="SUITE",
+        help=f"shipped suite ({', '.join(shipped_suites())}) or path of a suite .toml file",
+    )
+    sweep.add_argument("--out", required=True, help="results folder (created; resumed if present)")
+    sweep.add_argument(
+        "--jobs",
+        type=_jobs,
+        default=DEFAULT_JOBS,
+        help=f"local worker processes, one thread each (default {DEFAULT_JOBS}; at most "
+        f"{JOBS_PER_CPU} per CPU)",
+    )
+    sweep.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        type=_scheduler,
+        help="send the runs to this Dask distributed scheduler (e.g. tcp://host:8786) "
+        "instead of local workers; --jobs is then ignored",
+    )
+    sweep.add_argument(
+        "--worker-timeout",
+        metavar="SECONDS",
+        type=_worker_timeout,
+        default=DEFAULT_WORKER_TIMEOUT_S,
+        help="with --scheduler: stop (finished runs stored, resumable) when the scheduler has "
+        f"had no live worker for this long (default {DEFAULT_WORKER_TIMEOUT_S:g})",
+    )
+    sweep.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar with ETA (default: only on a terminal)",
+    )
+    sweep.add_argument(
+        "--allow-suite-change",
+        action="store_true",
+        help="add to a results folder written from a different version of the suite file",
+    )
+    sweep.add_argument("--dry-run", action="store_true", help="list the runs still to do and exit")
+    sweep.add_argument(
+        "--rebuild-manifest",
+        action="store_true",
+        help="write a damaged or missing manifest.json anew from the stored runs (which must "
+        "come from SUITE), then exit",
+    )
+    sweep.set_defaults(func=_guarded("sweep", cmd_sweep))
+
+    score = sub.add_parser(
+        "score",
+        help="solve every instance of the library with one optimiser (resumable) into DIR",
+        description="Run an optimiser on one split of the instance library (recorded local "
+        "problems with best-known optima J*) at each budget and seed; 'report DIR' gives the "
+        "leaderboard (median normalised gap (f - J*) / (f_warm - J*), relative gap, success "
+        "rates, ERT, ECDFs, performance profiles, per-phase and paired tables).",
+    )
+    score.add_argument("--optimizer", required=True, help="registered optimizer name")
+    score.add_argument(
+        "--set", action="append", metavar="FIELD=VALUE", help="override an optimizer field"
+    )
+    score.add_argument(
+        "--budgets",
+        nargs="+",
+        type=_score_budget,
+        default=[(None, None)],
+        metavar="B",
+        help="per-solve budgets: 'default' (the optimizer's own) or evaluations (default: default)",
+    )
+    score.add_argument("--seeds", nargs="+", type=_seed, default=[0], help="seeds (default 0)")
+    score.add_argument(
+        "--deadline-ms", type=_deadline, metavar="MS", help="per-solve wall-clock deadline"
+    )
+    score.add_argument(
+        "--library",
+        choices=LIBRARY_VERSIONS,
+        help=f"library version (default: the shipped one, {SHIPPED_VERSION})",
+    )
+    score.add_argument(
+        "--split",
+        choices=("test", "validation", "all"),
+        help="instances solved, degenerate ones included: a split of the library or all of "
+        "it (default: test; all on v1, which has no splits and allows only all)",
+    )
+    score.add_argument("--out", required=True, help="results folder (resumed if it exists)")
+    score.add_argument(
+        "--jobs",
+        type=_jobs,
+        default=DEFAULT_JOBS,
+        help=f"worker processes (default {DEFAULT_JOBS}; at most {JOBS_PER_CPU} per CPU)",
+    )
+    score.set_defaults(func=_guarded("score", cmd_score))
+
+    report = sub.add_parser(
+        "report",
+        help="statistics tables (Markdown, CSV) and figures of a results folder",
+        description="Median, IQR, bootstrap CI; Wilcoxon vs a baseline with Holm; A12; "
+        "Friedman with average ranks; seaborn figures.",
+    )
+    report.add_argument("results", metavar="DIR", help="results folder written by 'sweep'")
+    report.add_argument(
+        "--baseline",
+        metavar="NAME",
+        help="level compared against (default: modified-bso when comparing optimizers, "
+        "'off' when comparing trigger settings)",
+    )
+    report.add_argument(
+        "--compare",
+        choices=("optimizer", "trigger", "budget", "scenario"),
+        help="factor compared (default: optimizer if the results hold several, else trigger)",
+    )
+    report.add_argument("--out", help="report folder (default: DIR/report)")
+    report.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing report folder (as a whole) instead of refusing",
+    )
+    report.add_argument(
+        "--figures",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="write the seaborn figures (default on)",
+    )
+    report.set_defaults(func=_guarded("report", cmd_report))
+
+    export = sub.add_parser(
+        "export-ioh",
+        help="score runs of a results folder in the IOHprofiler format (for IOHanalyzer)",
+        description="Write every score run of DIR as IOHprofiler data: one algorithm per "
+        "optimiser and budget, the library as one function whose instances are its problems, "
+        "one run per non-degenerate instance and seed, raw_y the normalised gap "
+        "(f - J*) / (f_warm - J*).",
+    )
+    export.add_argument("results", metavar="DIR", help="results folder written by 'score'")
+    export.add_argument("--out", help="export folder (default: DIR/ioh)")
+    export.add_argument(
+        "--zip", action="store_true", help="also write the folder as OUT.zip (IOHanalyzer upload)"
+    )
+    export.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing export folder (and zip) instead of refusing",
+    )
+    export.set_defaults(func=_guarded("export-ioh", cmd_export_ioh))
