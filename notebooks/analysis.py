@@ -49,7 +49,7 @@ import matplotlib.pyplot as plt
 import pandas as pd
 from IPython.display import Markdown, display
 
-from formation_bench.analysis import figures
+from formation_bench.analysis import figures, run_figures
 from formation_bench.analysis import notebook as analysis
 from formation_bench.analysis.figures import (
     distribution_figure,
@@ -60,7 +60,6 @@ from formation_bench.analysis.figures import (
     solves_figure,
 )
 from formation_bench.analysis.report import analyse
-from formation_bench.mpc.metrics import pair_names
 from formation_bench.mpc.scenario import get_scenario
 
 pd.set_option("display.precision", 3)
@@ -101,9 +100,7 @@ else:
 
 # %%
 if not paper.empty:
-    scenario = get_scenario("paper")
-    desired = scenario.desired_distances()
-    desired_by_name = {name: float(desired[i, j]) for name, i, j in pair_names(scenario.n_uav)}
+    desired_by_name = run_figures.named_desired_distances(get_scenario("paper"))
     for trigger, numbers in ((False, (3, 4)), (True, (5, 6))):
         if not (paper["trigger"] == trigger).any():
             continue
@@ -133,12 +130,7 @@ comparison = analysis.suite_runs(results, "comparison")
 if comparison.empty:
     say("No `comparison` suite in this folder: section 2 skipped.")
 else:
-    for metric in (
-        "steady_state_cost",
-        "tracking_error_max_m",
-        "distance_error_max_m_max",
-        "transient_cost",
-    ):
+    for metric in analysis.COMPARED_METRICS:
         show(distribution_figure(comparison, metric, "optimizer"))
         say(analysis.distribution_sentence(comparison, metric))
 
@@ -160,13 +152,7 @@ if not comparison.empty:
         f"Statistics against the baseline `{report.baseline}` (paired by seed, Wilcoxon "
         "signed-rank, Holm-adjusted; A12 < 0.5: lower than the baseline):"
     )
-    headline = [
-        "steady_state_cost",
-        "tracking_error_max_m",
-        "distance_error_max_m_max",
-        "transient_cost",
-    ]
-    display(report.wilcoxon[report.wilcoxon["metric"].isin(headline)])
+    display(report.wilcoxon[report.wilcoxon["metric"].isin(analysis.COMPARED_METRICS)])
     display(report.friedman)
 
 # %% [markdown]
@@ -182,12 +168,7 @@ if ablation.empty:
     say("No `ablation` suite in this folder: section 3 skipped.")
 else:
     ablation_report = analyse(ablation, baseline="modified-bso")
-    for metric in (
-        "steady_state_cost",
-        "tracking_error_max_m",
-        "distance_error_max_m_max",
-        "transient_cost",
-    ):
+    for metric in analysis.COMPARED_METRICS:
         effects = analysis.ablation_effects(ablation_report.wilcoxon, metric)
         display(pd.DataFrame([vars(e) for e in effects]))
         say(analysis.ablation_sentence(effects))

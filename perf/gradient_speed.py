@@ -73,7 +73,7 @@ def measure(
         "cpus": os.cpu_count(),
         "python": platform.python_version(),
         "scenario": scenario.name,
-        "n_steps": scenario.n_steps,
+        "n_steps": scenario.timing.n_steps,
         "load_average_before": list(os.getloadavg()),
         "closed_loop": {},
         "recorded": {},
@@ -113,7 +113,7 @@ def measure(
         }
 
     instants = record_instants(
-        scenario, get_optimizer("modified-bso"), list(range(scenario.n_steps)), seed=0
+        scenario, get_optimizer("modified-bso"), list(range(scenario.timing.n_steps)), seed=0
     )
     recorded: dict[str, list[float]] = {name: [] for name in names}
     for repeat in range(repeats):

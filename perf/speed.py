@@ -106,8 +106,9 @@ def kernel_comparison(
         scenario = problem.scenario
         # the kernels' own arguments, as LocalProblem.__call__ passes them
         args = (
-            problem.state, problem.block_of_step, scenario.period_s, scenario.rk4_substeps,
-            problem._distance_targets, problem._centre_target, scenario.w_dst, problem._w_centre,
+            problem.state, problem.block_of_step, scenario.timing.period_s,
+            scenario.timing.rk4_substeps, problem._distance_targets, problem._centre_target,
+            scenario.weights.w_dst, problem._w_centre,
         )  # fmt: skip
         calls.append((problem.bounds.sample(rng, population_size), args))
     max_rel = 0.0

@@ -145,7 +145,11 @@ def scenario_for(n_uav: int, graph: CommunicationGraph) -> tuple[str, Scenario]:
     scenario = get_scenario(name)
     if scenario.n_uav != n_uav:
         raise ValueError(f"scenario {name!r} has {scenario.n_uav} UAVs, not {n_uav}")
-    return name, scenario if graph == scenario.graph else scenario.with_overrides(graph=graph)
+    return name, (
+        scenario
+        if graph == scenario.communication.graph
+        else scenario.with_overrides(graph=graph)
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -404,7 +408,9 @@ def run_spec(
     if steps is not None:
         scenario = scenario.with_overrides(
             n_steps=steps,
-            settle_time_s=round(min(scenario.settle_time_s, 0.5 * steps * scenario.period_s), 6),
+            settle_time_s=round(
+                min(scenario.evaluation.settle_time_s, 0.5 * steps * scenario.timing.period_s), 6
+            ),
         )
     return RunSpec.of(
         optimizer_name, get_optimizer(optimizer_name), name, scenario, trigger=True, seed=0

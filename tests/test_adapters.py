@@ -16,6 +16,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from helpers import BOX, CENTRE, D, Recorder, shifted_sphere
 
 from formation_bench.instances.library import shipped
 from formation_bench.optimizers import OPTIMIZERS, Bounds, Budget, get_optimizer
@@ -50,37 +51,16 @@ def adapter(name: str):
     return get_optimizer(name)
 
 
-class Recorder:
-    """Batch objective that keeps the shape of every call."""
-
-    def __init__(self, f) -> None:
-        self.f = f
-        self.calls: list[int] = []
-        self.points: list[np.ndarray] = []
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        self.calls.append(x.shape[0])  # the call's batch size
-        self.points.append(np.array(x, copy=True))
-        return self.f(x)
-
-
 def global_state() -> tuple[bytes, int]:
     """numpy's global random state (key and position), read only to see that it is unchanged."""
     state = np.random.get_state(legacy=False)  # noqa: NPY002 - read, never drawn from
     return state["state"]["key"].tobytes(), state["state"]["pos"]
 
 
-def shifted_sphere(centre: np.ndarray):
-    return lambda x: np.einsum("ij,ij->i", x - centre, x - centre)
-
-
 def rosenbrock(x: np.ndarray) -> np.ndarray:
     return np.sum(100.0 * (x[:, 1:] - x[:, :-1] ** 2) ** 2 + (1.0 - x[:, :-1]) ** 2, axis=1)
 
 
-D = 10
-BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
-CENTRE = np.linspace(-3.0, 2.0, D)  # off-centre: no optimiser gets it by symmetry
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -111,6 +91,7 @@ def test_an_iteration_budget_runs_that_many_batched_iterations(name: str) -> Non
 
 
 @pytest.mark.parametrize("name", NAMES)
+@pytest.mark.slow
 def test_a_deadline_stops_the_solve_between_iterations(name: str) -> None:
     optimizer = adapter(name)
     res = optimizer.minimize(
@@ -124,6 +105,7 @@ def test_a_deadline_stops_the_solve_between_iterations(name: str) -> None:
 
 
 @pytest.mark.parametrize("name", NAMES)
+@pytest.mark.slow
 def test_leaves_numpy_global_random_state_alone(name: str) -> None:
     optimizer = adapter(name)
     before = global_state()
@@ -141,6 +123,7 @@ ROSENBROCK = {"ng-ngopt": 30.0, "ng-de": 40.0, "pycma": 30.0, "mealpy-bso": 120.
 
 
 @pytest.mark.parametrize("name", NAMES)
+@pytest.mark.slow
 def test_reaches_a_small_cost_on_a_10d_sphere_and_rosenbrock(name: str) -> None:
     optimizer = adapter(name)
     sphere = shifted_sphere(CENTRE)
@@ -169,6 +152,7 @@ def instances():
 
 
 @pytest.mark.parametrize("name", NAMES)
+@pytest.mark.slow
 def test_small_gap_on_instances_of_the_shipped_library(name: str, instances) -> None:
     optimizer = adapter(name)
     gaps = []
@@ -257,6 +241,7 @@ def test_every_offered_mealpy_algorithm_runs_seeded_and_batched(algorithm: str) 
 
 
 @pytest.mark.parametrize("algorithm", NEVERGRAD_ALGORITHMS)
+@pytest.mark.slow
 def test_every_offered_nevergrad_algorithm_is_seeded_by_the_generator_alone(algorithm: str):
     if not library_available("nevergrad"):
         pytest.skip(f"needs 'nevergrad': {INSTALL_HINT}")

@@ -40,6 +40,160 @@ def imported_modules(path: Path, package: str) -> set[str]:
     return found
 
 
+# --- the module graph ----------------------------------------------------------------------
+
+LAYERS = ("optimizers", "mpc", "pipeline", "instances", "experiments", "analysis", "cli")
+"""The subpackages, each importing only from itself and those before it."""
+SHARED = ("fields", "plugins", "_version")
+"""Modules beside the subpackages that every layer may import (as the package root)."""
+
+
+def module_name(path: Path, package: Path = PACKAGE) -> str:
+    """``formation_bench.mpc.loop`` for ``src/formation_bench/mpc/loop.py``; a package is
+    named by its folder."""
+    parts = list(path.relative_to(package.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph(package: Path = PACKAGE) -> dict[str, set[str]]:
+    """Every module of the package and the package's modules it imports: at the top, in a
+    function or under ``TYPE_CHECKING`` alike. ``from a.b import c`` imports the module
+    ``a.b.c`` if there is one, else ``a.b``."""
+    paths = {module_name(path, package): path for path in sorted(package.rglob("*.py"))}
+    graph = {}
+    for name, path in paths.items():
+        own = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        candidates = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                candidates.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    parent = own.rsplit(".", node.level - 1)[0] if node.level > 1 else own
+                    base = f"{parent}.{base}" if base else parent
+                for alias in node.names:
+                    module = f"{base}.{alias.name}"
+                    candidates.add(module if module in paths else base)
+            elif isinstance(node, ast.Call) and getattr(node.func, "attr", "") == "import_module":
+                candidates.update(a.value for a in node.args if isinstance(a, ast.Constant))
+        graph[name] = {c for c in candidates if c in paths and c != name}
+    return graph
+
+
+def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """One cycle (``[a, b, ..., a]``) through every group of modules that import each other,
+    directly or through others (Tarjan's strongly connected components)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    groups: list[set[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        for target in sorted(graph[node]):
+            if target not in index:
+                visit(target)
+                low[node] = min(low[node], low[target])
+            elif target in stack:
+                low[node] = min(low[node], index[target])
+        if low[node] == index[node]:
+            group = set()
+            while True:
+                member = stack.pop()
+                group.add(member)
+                if member == node:
+                    break
+            if len(group) > 1:
+                groups.append(group)
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return [_cycle_within(graph, group) for group in groups]
+
+
+def _cycle_within(graph: dict[str, set[str]], group: set[str]) -> list[str]:
+    """The shortest cycle from the group's first module back to it, inside the group."""
+    start = min(group)
+    paths = {start: [start]}
+    frontier = [start]
+    while frontier:
+        following = []
+        for node in frontier:
+            for target in sorted(graph[node] & group):
+                if target == start:
+                    return [*paths[node], start]
+                if target not in paths:
+                    paths[target] = [*paths[node], target]
+                    following.append(target)
+        frontier = following
+    raise AssertionError(f"no cycle through {start} in {sorted(group)}")
+
+
+def layer_of(module: str) -> int | None:
+    """The place of a module's subpackage in :data:`LAYERS`; None for the shared modules."""
+    parts = module.split(".")
+    return LAYERS.index(parts[1]) if len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[str]:
+    """Every import of a module from a later subpackage than its own, as ``a -> b``."""
+    found = []
+    for module, targets in sorted(graph.items()):
+        for target in sorted(targets):
+            own, other = layer_of(module), layer_of(target)
+            if own is not None and other is not None and other > own:
+                found.append(f"{module} -> {target} ({LAYERS[own]} imports {LAYERS[other]})")
+    return found
+
+
+def test_no_modules_import_each_other_in_a_cycle():
+    cycles = find_cycles(import_graph())
+    assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+
+
+def test_the_subpackages_import_only_downwards():
+    offending = upward_imports(import_graph())
+    order = " < ".join(LAYERS)
+    assert not offending, f"imports against the order {order}:\n" + "\n".join(offending)
+
+
+def test_every_module_is_in_a_layer_or_shared():
+    shared = {PACKAGE.name, *(f"{PACKAGE.name}.{name}" for name in SHARED)}
+    loose = [m for m in import_graph() if layer_of(m) is None and m not in shared]
+    assert not loose, f"modules in no subpackage of {LAYERS} and not shared: {loose}"
+
+
+def test_the_graph_checks_find_a_cycle_and_an_upward_import(tmp_path):
+    package = tmp_path / "formation_bench"
+    for folder in ("mpc", "analysis"):
+        (package / folder).mkdir(parents=True)
+        (package / folder / "__init__.py").write_text("")
+    (package / "__init__.py").write_text("")
+    (package / "mpc" / "a.py").write_text("def f():\n    from . import b\n")
+    (package / "mpc" / "b.py").write_text("from formation_bench.mpc.c import thing\n")
+    (package / "mpc" / "c.py").write_text("import formation_bench.mpc.a\n")
+    (package / "mpc" / "d.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+        "    from formation_bench.analysis import report\n"
+    )
+    (package / "analysis" / "report.py").write_text("from formation_bench.mpc import d\n")
+    graph = import_graph(package)
+    assert graph["formation_bench.mpc.a"] == {"formation_bench.mpc.b"}
+    cycles = sorted(find_cycles(graph))
+    assert cycles == [
+        ["formation_bench.analysis.report", "formation_bench.mpc.d",
+         "formation_bench.analysis.report"],
+        ["formation_bench.mpc.a", "formation_bench.mpc.b", "formation_bench.mpc.c",
+         "formation_bench.mpc.a"],
+    ]  # fmt: skip
+    assert upward_imports(graph) == [
+        "formation_bench.mpc.d -> formation_bench.analysis.report (mpc imports analysis)"
+    ]
+
+
 OPTIMIZER_FILES = sorted((PACKAGE / "optimizers").rglob("*.py"))
 
 
@@ -88,6 +242,7 @@ def test_listing_the_optimizers_loads_no_adapted_library():
     assert not loaded & {"nevergrad", "cma", "mealpy"}
 
 
+@pytest.mark.slow
 def test_the_solver_libraries_are_loaded_when_a_solver_is_built():
     loaded = loaded_after(
         "import numpy as np\n"

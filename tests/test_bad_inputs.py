@@ -348,6 +348,7 @@ INTERRUPTED = [
 
 @pytest.mark.parametrize(("args", "running", "existing", "presses"), INTERRUPTED,
                          ids=["run", "reproduce", "run-twice"])  # fmt: skip
+@pytest.mark.slow
 def test_ctrl_c_exits_130_in_one_line_and_leaves_nothing_finished(
     args, running, existing, presses, tmp_path
 ):

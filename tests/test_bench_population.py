@@ -7,11 +7,13 @@ being skipped.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from formation_bench.optimizers import get_optimizer
 from perf import bbob, population_speed, replay
 
 
+@pytest.mark.slow
 def test_bbob_runs_and_tabulates() -> None:
     records = bbob.measure(["original-bso", "pso"], [1, 15], 2, 10, 200)
     assert len(records) == 3 * 2 * 2  # two optimisers and mealpy, two functions, two instances
@@ -42,6 +44,7 @@ def test_population_speed_measures_and_formats() -> None:
     assert "| pso | 1230 |" in table and "mealpy-OriginalBSO" in table
 
 
+@pytest.mark.slow
 def test_population_speed_times_de_and_random_search_beside_the_modified_bso() -> None:
     # the table enumerates the registry: the newer optimisers get rows without an edit
     assert {"modified-bso", "de", "de-current-to-best", "random-search"} <= set(

@@ -287,3 +287,30 @@ def test_the_record_columns_are_documented_as_declared():
     text = (Path(__file__).parents[1] / "docs" / "benchmarks.md").read_text()
     documented = text.split("<!-- record columns:", 1)[1].split("\n", 1)[1].split("\n\n", 1)[0]
     assert documented == columns_table()
+
+
+def test_the_command_line_modules_import_one_way():
+    import ast
+    from pathlib import Path
+
+    import formation_bench.cli as cli
+
+    def imported(name: str) -> set[str]:
+        tree = ast.parse((Path(cli.__file__).parent / f"{name}.py").read_text())
+        found = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                found.add(node.module)
+            elif isinstance(node, ast.Import):
+                found.update(alias.name for alias in node.names)
+        return {m.rsplit(".", 1)[-1] for m in found if m.startswith("formation_bench.cli")}
+
+    assert imported("common") == set()
+    assert imported("sweep_commands") == {"common"}
+    assert imported("main") == {"cli", "common", "sweep_commands"}  # cli: command_start
+    # command_start is the first import of the entry point's module, before anything heavy
+    source = (Path(cli.__file__).parent / "main.py").read_text()
+    first = next(line for line in source.splitlines() if line.startswith(("from ", "import ")))
+    later = source.split("\n# first:", 1)[1].splitlines()[1]
+    assert first == "from __future__ import annotations"
+    assert later == "from formation_bench.cli import command_start  # isort: skip"

@@ -48,7 +48,7 @@ def test_applied_controls_respect_bounds_and_the_plant_follows_them(runs):
         lower, upper = SHORT.control_lower, SHORT.control_upper
         assert (trace.controls >= lower).all() and (trace.controls <= upper).all()
         for i in range(SHORT.n_uav):
-            flown = rollout(trace.states[0, i], trace.controls[:, i], SHORT.period_s, 1)
+            flown = rollout(trace.states[0, i], trace.controls[:, i], SHORT.timing.period_s, 1)
             np.testing.assert_allclose(flown, trace.states[:, i], atol=1e-9)
 
 
@@ -77,7 +77,7 @@ def test_kept_plan_is_applied_between_solves():
             [s.objective.controls(s.result.x) for s in recording.solves if s.objective.uav == i]
         )
         plan, start = None, 0
-        for c in range(in_formation.n_steps):
+        for c in range(in_formation.timing.n_steps):
             if trace.solved[c, i]:
                 plan, start = next(plans), c
             np.testing.assert_array_equal(trace.controls[c, i], plan[c - start])
@@ -97,7 +97,7 @@ def test_huge_thresholds_leave_only_expiry_and_saturation():
     for i in range(scenario.n_uav):
         solves = np.flatnonzero(trace.solved[:, i])
         gaps = np.diff(solves)
-        assert gaps.max() <= scenario.horizon_steps
+        assert gaps.max() <= scenario.timing.horizon_steps
 
 
 def test_metrics_keys_and_values(runs):
@@ -138,7 +138,8 @@ def test_closed_loop_cost_is_eq11_summed(runs):
                 for j in range(s.n_uav)
                 if j != i
             )
-            total += s.period_s * (s.w_dst * formation + s.w_trj * np.sum(centre_error**2))
+            rate = s.weights.w_dst * formation + s.weights.w_trj * np.sum(centre_error**2)
+            total += s.timing.period_s * rate
     assert closed_loop_cost(trace) == pytest.approx(total, rel=1e-12)
 
 

@@ -11,22 +11,19 @@ import math
 
 import numpy as np
 import pytest
+from helpers import BOX, D
+from test_cma_es import first_state, generation, view
 from test_compiled_loop import CompiledSphere, PlainCallable, same_result
 
-from formation_bench.optimizers import CMAES, Bounds, Budget, EvaluationCounter, get_optimizer
+from formation_bench.optimizers import CMAES, Bounds, Budget, get_optimizer
 from formation_bench.optimizers.cma_es import CMABoundHandling, CMAConstants, Restarts
-from formation_bench.optimizers.cma_ops import (
-    cma_generation,
+from formation_bench.optimizers.cma_restarts import first_run
+from formation_bench.optimizers.cma_transform import (
     linquad_inverse,
     linquad_margins,
     linquad_transform,
-    new_run,
-    read_run,
-    run_template,
 )
 
-D = 10
-BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
 TRANSFORM = CMABoundHandling.TRANSFORM
 
 # boxes whose margins take each branch of pycma's rule: (u - l) / 2 (narrow), 1/20, |bound|/20
@@ -80,41 +77,40 @@ def test_the_unit_box_margins_are_five_percent_and_the_transform_the_identity_be
     assert t[4] == pytest.approx(0.3) and t[5] == pytest.approx(0.3)
 
 
-def transform_run(rng: np.random.Generator, generations: int) -> tuple[np.ndarray, np.ndarray]:
-    """A transform run after some generations on the sphere, centred near the lower face."""
+def transform_run(rng: np.random.Generator, generations: int) -> tuple:
+    """A transform run after some generations on the sphere, centred near the lower face (the
+    tutorial's constants), its params and the last samples' costs."""
     lam = 10
-    template = run_template(D, lam, True, 1e-12, 1e-12, int(TRANSFORM))
-    state = new_run(template, lam, np.full(D, 0.1), 0.2, BOX.lower, BOX.upper)
+    state, params = first_state(CMAES(constants=CMAConstants.TUTORIAL), 0.1)
     costs = np.empty(0)
     for _ in range(generations):
-        normals = rng.standard_normal((1, lam, D))
-        state = cma_generation(state, costs, normals, normals, 0)
-        costs = ((state[:lam] + 6.0) ** 2).sum(axis=1)  # the optimum is outside the box
-    return state, costs
+        state = generation(state, params, costs, rng.standard_normal((lam, D)))
+        points = state.run.samples.points
+        costs = ((points + 6.0) ** 2).sum(axis=1)  # the optimum is outside the box
+    return state, params, costs
 
 
+@pytest.mark.slow
 def test_a_transform_generation_evaluates_the_mapped_samples_and_learns_the_samples() -> None:
     lam = 10
-    state, costs = transform_run(np.random.default_rng(0), 4)
-    normals = 3.0 * np.random.default_rng(1).standard_normal((1, lam, D))
-    view = read_run(cma_generation(state, costs, normals, normals, 0), lam)
-    sampled = (view.eigenvectors.T @ (view.axes[:, None] * normals[0].T)).T
-    np.testing.assert_allclose(view.steps, sampled, rtol=1e-12, atol=1e-15)
-    np.testing.assert_allclose(view.lengths, (normals[0] ** 2).sum(axis=1), rtol=1e-12)
-    u = view.mean + view.sigma * sampled
+    state, params, costs = transform_run(np.random.default_rng(0), 4)
+    normals = 3.0 * np.random.default_rng(1).standard_normal((lam, D))
+    run = view(generation(state, params, costs, normals))
+    sampled = (run.rows.T @ (run.axes[:, None] * normals.T)).T
+    np.testing.assert_allclose(run.steps, sampled, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(run.lengths, (normals**2).sum(axis=1), rtol=1e-12)
+    u = run.mean + run.sigma * sampled
     assert np.sum((u < 0.0) | (u > 1.0)) > 10  # some samples left the box
     mapped = linquad_transform(u, np.zeros(D), np.ones(D))
-    np.testing.assert_allclose(view.points, BOX.lower + BOX.width * mapped, rtol=0, atol=1e-12)
-    assert BOX.contains(view.points)
+    np.testing.assert_allclose(run.points, BOX.lower + BOX.width * mapped, rtol=0, atol=1e-12)
+    assert BOX.contains(run.points)
 
 
 @pytest.mark.parametrize("where", [0.0, 0.01, 0.5, 0.97, 1.0])
 def test_the_first_mean_is_the_inverse_image_of_the_start(where: float) -> None:
     x0 = BOX.lower + where * BOX.width
-    opt = CMAES(bound_handling=TRANSFORM)
-    counter = EvaluationCounter(lambda x: np.zeros(x.shape[0]), D, None)
-    state = opt.init(counter, BOX, np.random.default_rng(0), x0, 10)
-    mean = read_run(state.run, 10).mean
+    state = first_run(CMAES(bound_handling=TRANSFORM), BOX, x0)
+    mean = state.run.distribution.mean
     np.testing.assert_allclose(linquad_transform(mean[None], np.zeros(D), np.ones(D))[0], where)
     if where == 0.0:  # the bottom of the parabola, a margin beyond the face
         np.testing.assert_allclose(mean, -0.05)
@@ -123,6 +119,7 @@ def test_the_first_mean_is_the_inverse_image_of_the_start(where: float) -> None:
 
 
 @pytest.mark.parametrize("lamarckian", [False, True])
+@pytest.mark.slow
 def test_the_transform_keeps_every_point_inside_and_reaches_a_corner(lamarckian: bool) -> None:
     box = Bounds(np.full(D, -1.0), np.full(D, 1.0))
     points = []

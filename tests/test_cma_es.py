@@ -1,52 +1,67 @@
-"""CMA-ES: parameters, update and sampling by hand, the eigensolver, repair, restarts."""
+"""CMA-ES: parameters, update and sampling by hand, the eigendecomposition, repair, restarts."""
 
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from helpers import BOX, CENTRE, D, Recorder, shifted_sphere
 
-from formation_bench.optimizers import CMAES, Bounds, Budget, EvaluationCounter, get_optimizer
+from formation_bench.optimizers import CMAES, Bounds, Budget, get_optimizer
 from formation_bench.optimizers.bound_handling import BoundHandling
+from formation_bench.optimizers.cma_eigen import symmetric_eigen
 from formation_bench.optimizers.cma_es import (
-    MAX_DOUBLINGS,
     CMABoundHandling,
     CMAConstants,
     Restarts,
+    cma_ask,
+    cma_tell,
 )
 from formation_bench.optimizers.cma_ops import (
-    cma_generation,
+    MAX_CONDITION,
     cma_parameters,
     default_population_size,
     injection_cap,
-    new_run,
-    read_run,
-    run_template,
-    symmetric_eigen,
-    where_in_core,
+    refreshed,
 )
+from formation_bench.optimizers.cma_restarts import MAX_DOUBLINGS, CMAState, first_run, restart
 
-D = 10
-BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
-CENTRE = np.linspace(-3.0, 2.0, D)
-
-
-def sphere(x: np.ndarray) -> np.ndarray:
-    z = x - CENTRE
-    return np.einsum("ij,ij->i", z, z)
+sphere = shifted_sphere(CENTRE)
 
 
-class Recorder:
-    """Batch objective that keeps the size of every batch it is asked to evaluate."""
+# --- driving the kernels by hand ----------------------------------------------------------------
 
-    def __init__(self, f=sphere) -> None:
-        self.f = f
-        self.sizes: list[int] = []
 
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        self.sizes.append(x.shape[0])
-        return self.f(x)
+def first_state(opt: CMAES, mean: float, bounds: Bounds = BOX) -> tuple[CMAState, tuple]:
+    """``opt``'s first run centred on ``mean`` in every normalised coordinate, and its params."""
+    state = first_run(opt, bounds, bounds.lower + mean * bounds.width)
+    return state, opt.params(bounds, 2**62)
+
+
+def generation(state: CMAState, params: tuple, costs: np.ndarray, normals: np.ndarray) -> CMAState:
+    """Tell the last samples' ``costs`` (none: nothing to learn), then ask with ``normals``
+    (lambda x n): the update from the costs and the next samples."""
+    if costs.shape[0] > 0:
+        state = cma_tell(state, params, state.run.samples.points, costs, 1)
+    state, _, _ = cma_ask(state, params, normals, normals, 1, 10**9)
+    return state
+
+
+def view(state: CMAState) -> SimpleNamespace:
+    """The run's named parts in one namespace; ``rows`` are C's eigenvectors (B^T)."""
+    run = state.run
+    d, samples, progress = run.distribution, run.samples, run.progress
+    return SimpleNamespace(**d._asdict(), **samples._asdict(), **progress._asdict(),
+                           rows=d.eigenvectors)  # fmt: skip
+
+
+def with_path_sigma(state: CMAState, path_sigma: np.ndarray) -> CMAState:
+    """``state`` with its run's p_sigma replaced."""
+    run = state.run
+    distribution = run.distribution._replace(path_sigma=np.array(path_sigma, dtype=float))
+    return state._replace(run=run._replace(distribution=distribution))
 
 
 # --- parameters ---------------------------------------------------------------------------------
@@ -153,6 +168,29 @@ def test_symmetric_eigen_on_degenerate_matrices(a: np.ndarray) -> None:
     np.testing.assert_allclose(np.sort(values), np.linalg.eigvalsh(a), atol=1e-13)
 
 
+def test_a_covariance_not_finite_or_zero_keeps_the_eigensystem_and_stops_the_run() -> None:
+    state, _ = first_state(CMAES(), 0.5)
+    distribution = state.run.distribution
+    for bad in (math.nan, math.inf, 0.0):
+        cov = np.eye(D) * (bad if bad == 0.0 else 1.0)
+        cov[0, 1] = cov[1, 0] = bad
+        out, condition = refreshed(distribution._replace(cov=cov))
+        assert condition == math.inf and not condition <= MAX_CONDITION
+        assert out.eigenvectors is distribution.eigenvectors and out.axes is distribution.axes
+
+
+def test_a_refreshed_eigensystem_is_that_of_c() -> None:
+    state, _ = first_state(CMAES(), 0.5)
+    a = np.random.default_rng(0).standard_normal((D, D + 3))
+    cov = a @ a.T / D
+    out, condition = refreshed(state.run.distribution._replace(cov=cov))
+    rows, axes = out.eigenvectors, out.axes
+    np.testing.assert_allclose(rows.T @ np.diag(axes**2) @ rows, cov, atol=1e-12)
+    np.testing.assert_allclose(out.inv_sqrt @ out.inv_sqrt @ cov, np.eye(D), atol=1e-9)
+    values = np.linalg.eigvalsh(cov)
+    assert condition == pytest.approx(values[-1] / values[0], rel=1e-9)
+
+
 # --- one generation by hand ---------------------------------------------------------------------
 
 
@@ -205,33 +243,30 @@ def evolved_run(
     lamarckian: bool = False,
     constants: CMAConstants = CMAConstants.TUTORIAL,
 ):
-    """A run after some generations on the sphere, so that C, paths and sigma are not trivial."""
+    """A run after some generations on the sphere, so that C, paths and sigma are not trivial,
+    its params and the last samples' costs."""
     lam = 10
-    template = run_template(
-        D, lam, active, 1e-12, 1e-12, int(BoundHandling.CLIP), lamarckian, int(constants)
-    )
-    state = new_run(template, lam, np.full(D, 0.5), 0.2, BOX.lower, BOX.upper)
+    opt = CMAES(active=active, bound_handling=CMABoundHandling.CLIP, lamarckian=lamarckian,
+                constants=constants)  # fmt: skip
+    state, params = first_state(opt, 0.5)
     costs = np.empty(0)
     for _ in range(generations):
-        normals = rng.standard_normal((1, lam, D))
-        state = cma_generation(state, costs, normals, normals, 0)
-        costs = sphere(state[:lam])
-    return state, costs
+        state = generation(state, params, costs, rng.standard_normal((lam, D)))
+        costs = sphere(state.run.samples.points)
+    return state, params, costs
 
 
 @pytest.mark.parametrize(("active", "stalled"), [(True, False), (False, False), (True, True)])
 def test_one_update_is_the_tutorial_written_out(active: bool, stalled: bool) -> None:
     lam = 10
     params = cma_parameters(D, lam, active)
-    state, costs = evolved_run(np.random.default_rng(0), 7, active)
+    state, settings, costs = evolved_run(np.random.default_rng(0), 7, active)
     if stalled:  # a long p_sigma: h_sigma = 0 stalls the rank-one path
-        state = state.copy()
-        where = where_in_core(D, lam, params.history)
-        state[lam:].reshape(-1)[where.path_sigma : where.path_sigma + D] = 3.0 * params.chi_n
-    before = read_run(state, lam)
+        state = with_path_sigma(state, np.full(D, 3.0 * params.chi_n))
+    before = view(state)
     assert before.generation == 6 and not np.allclose(before.cov, np.eye(D))
-    normals = np.random.default_rng(1).standard_normal((1, lam, D))
-    after = read_run(cma_generation(state, costs, normals, normals, 0), lam)
+    normals = np.random.default_rng(1).standard_normal((lam, D))
+    after = view(generation(state, settings, costs, normals))
     mean, ps, pc, cov, sigma = reference_update(before, costs, params.weights, params, D)
     np.testing.assert_allclose(after.mean, mean, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(after.path_sigma, ps, rtol=1e-10, atol=1e-13)
@@ -246,14 +281,12 @@ def test_one_update_is_the_tutorial_written_out(active: bool, stalled: bool) -> 
 def test_one_update_with_pycmas_constants_is_written_out_with_its_h_sigma(stalled: bool) -> None:
     lam = 10
     params = cma_parameters(D, lam, True, CMAConstants.PYCMA)
-    state, costs = evolved_run(np.random.default_rng(0), 7, constants=CMAConstants.PYCMA)
+    state, settings, costs = evolved_run(np.random.default_rng(0), 7, constants=CMAConstants.PYCMA)
     if stalled:
-        state = state.copy()
-        where = where_in_core(D, lam, params.history)
-        state[lam:].reshape(-1)[where.path_sigma : where.path_sigma + D] = 3.0 * params.chi_n
-    before = read_run(state, lam)
-    normals = np.random.default_rng(1).standard_normal((1, lam, D))
-    after = read_run(cma_generation(state, costs, normals, normals, 0), lam)
+        state = with_path_sigma(state, np.full(D, 3.0 * params.chi_n))
+    before = view(state)
+    normals = np.random.default_rng(1).standard_normal((lam, D))
+    after = view(generation(state, settings, costs, normals))
     mean, ps, pc, cov, sigma = reference_update(before, costs, params.weights, params, D, True)
     np.testing.assert_allclose(after.mean, mean, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(after.path_sigma, ps, rtol=1e-10, atol=1e-13)
@@ -270,51 +303,47 @@ def test_the_two_h_sigma_tests_disagree_between_their_thresholds() -> None:
     outcomes = []
     for constants in CMAConstants:
         params = cma_parameters(D, lam, True, constants)
-        state, costs = evolved_run(np.random.default_rng(0), 40, constants=constants)
-        where = where_in_core(D, lam, params.history)
-        normals = np.random.default_rng(1).standard_normal((1, lam, D))
+        state, settings, costs = evolved_run(np.random.default_rng(0), 40, constants=constants)
+        normals = np.random.default_rng(1).standard_normal((lam, D))
         # choose the old path so that the new one has the length wanted: the new path is
         # (1 - c_sigma) old + the (known) contribution of this generation's mean shift
-        probe = state.copy()
-        probe[lam:].reshape(-1)[where.path_sigma : where.path_sigma + D] = 0.0
-        shift = read_run(cma_generation(probe, costs, normals, normals, 0), lam).path_sigma
+        probe = with_path_sigma(state, np.zeros(D))
+        shift = view(generation(probe, settings, costs, normals)).path_sigma
         direction = np.ones(D) / math.sqrt(D)
         target = math.sqrt(23.7) * direction
-        state = state.copy()
-        core = state[lam:].reshape(-1)
-        core[where.path_sigma : where.path_sigma + D] = (target - shift) / (1 - params.c_sigma)
-        after = read_run(cma_generation(state, costs, normals, normals, 0), lam)
+        state = with_path_sigma(state, (target - shift) / (1 - params.c_sigma))
+        after = view(generation(state, settings, costs, normals))
         assert np.sum(after.path_sigma**2) == pytest.approx(23.7, rel=1e-9)
-        outcomes.append(np.allclose(after.path_c, (1 - params.c_c) * read_run(state, lam).path_c))
+        outcomes.append(np.allclose(after.path_c, (1 - params.c_c) * view(state).path_c))
     assert outcomes == [False, True]  # tutorial: < 23.80, no stall; pycma: >= 23.64, stall
 
 
 def test_samples_are_the_mean_plus_sigma_b_d_z_mapped_to_the_box() -> None:
     lam = 10
-    state, costs = evolved_run(np.random.default_rng(2), 5)
-    normals = np.random.default_rng(3).standard_normal((1, lam, D)) * 0.01  # stay inside
-    out = cma_generation(state, costs, normals, normals, 0)
-    view = read_run(out, lam)
-    steps = (view.eigenvectors.T @ (view.axes[:, None] * normals[0].T)).T
-    np.testing.assert_allclose(view.steps, steps, rtol=1e-12, atol=1e-15)
-    u = view.mean + view.sigma * steps
-    np.testing.assert_allclose(view.points, BOX.lower + BOX.width * u, rtol=1e-12)
+    state, settings, costs = evolved_run(np.random.default_rng(2), 5)
+    normals = np.random.default_rng(3).standard_normal((lam, D)) * 0.01  # stay inside
+    out = view(generation(state, settings, costs, normals))
+    steps = (out.rows.T @ (out.axes[:, None] * normals.T)).T
+    np.testing.assert_allclose(out.steps, steps, rtol=1e-12, atol=1e-15)
+    u = out.mean + out.sigma * steps
+    np.testing.assert_allclose(out.points, BOX.lower + BOX.width * u, rtol=1e-12)
 
 
 def test_the_eigensystem_is_refreshed_lazily_and_then_matches_c() -> None:
     lam = 10
     params = cma_parameters(D, lam)
     assert 10 < params.eigen_gap < 20  # purecma's gap: every second generation at n = 10
-    state, costs = evolved_run(np.random.default_rng(4), 1)  # sampled once, nothing learned yet
+    # sampled once, nothing learned yet
+    state, settings, costs = evolved_run(np.random.default_rng(4), 1)
     refreshed = []
     for g in range(6):
-        normals = np.random.default_rng(g).standard_normal((1, lam, D))
-        state = cma_generation(state, costs, normals, normals, 0)
-        costs = sphere(state[:lam])
-        view = read_run(state, lam)
-        reconstructed = view.eigenvectors.T @ np.diag(view.axes**2) @ view.eigenvectors
-        refreshed.append(np.allclose(reconstructed, view.cov, rtol=1e-10, atol=1e-14))
-        inverse = view.inv_sqrt @ view.inv_sqrt
+        normals = np.random.default_rng(g).standard_normal((lam, D))
+        state = generation(state, settings, costs, normals)
+        costs = sphere(state.run.samples.points)
+        run = view(state)
+        reconstructed = run.rows.T @ np.diag(run.axes**2) @ run.rows
+        refreshed.append(np.allclose(reconstructed, run.cov, rtol=1e-10, atol=1e-14))
+        inverse = run.inv_sqrt @ run.inv_sqrt
         np.testing.assert_allclose(inverse @ reconstructed, np.eye(D), atol=1e-8)
     assert refreshed == [False, True, False, True, False, True]
 
@@ -324,30 +353,30 @@ def test_a_sample_outside_is_evaluated_repaired_and_learned_from_by_the_policy(
     lamarckian: bool,
 ) -> None:
     lam = 10
-    state, costs = evolved_run(np.random.default_rng(5), 3, lamarckian=lamarckian)
-    normals = np.zeros((1, lam, D))
-    normals[0, 0, :] = 60.0  # far outside along most coordinates
-    view = read_run(cma_generation(state, costs, normals, normals, 0), lam)
-    assert BOX.contains(view.points)
-    sampled = view.eigenvectors.T @ (view.axes * normals[0, 0])
-    u = view.mean + view.sigma * sampled
+    state, settings, costs = evolved_run(np.random.default_rng(5), 3, lamarckian=lamarckian)
+    normals = np.zeros((lam, D))
+    normals[0, :] = 60.0  # far outside along most coordinates
+    run = view(generation(state, settings, costs, normals))
+    assert BOX.contains(run.points)
+    sampled = run.rows.T @ (run.axes * normals[0])
+    u = run.mean + run.sigma * sampled
     outside = (u < 0) | (u > 1)
     assert outside.sum() >= 5
     repaired = np.clip(u, 0.0, 1.0)  # the evolved run clips
-    np.testing.assert_allclose(view.points[0], BOX.lower + BOX.width * repaired, rtol=1e-12)
+    np.testing.assert_allclose(run.points[0], BOX.lower + BOX.width * repaired, rtol=1e-12)
     if lamarckian:  # the repaired point's step, shortened to the cap
-        assert np.linalg.norm(view.inv_sqrt @ view.steps[0]) == pytest.approx(injection_cap(D))
-        direction = repaired - view.mean
+        assert np.linalg.norm(run.inv_sqrt @ run.steps[0]) == pytest.approx(injection_cap(D))
+        direction = repaired - run.mean
         np.testing.assert_allclose(
-            view.steps[0] / np.linalg.norm(view.steps[0]),
+            run.steps[0] / np.linalg.norm(run.steps[0]),
             direction / np.linalg.norm(direction),
             rtol=1e-10,
         )
     else:  # the sampled step: the search minimises f(repair(x))
-        np.testing.assert_allclose(view.steps[0], sampled, rtol=1e-12)
+        np.testing.assert_allclose(run.steps[0], sampled, rtol=1e-12)
     # a sample inside keeps its sampled step either way
-    np.testing.assert_allclose(view.points[1], BOX.lower + BOX.width * view.mean)
-    np.testing.assert_array_equal(view.steps[1], np.zeros(D))
+    np.testing.assert_allclose(run.points[1], BOX.lower + BOX.width * run.mean)
+    np.testing.assert_array_equal(run.steps[1], np.zeros(D))
 
 
 # --- behaviour ----------------------------------------------------------------------------------
@@ -359,34 +388,34 @@ def test_the_kept_step_lengths_are_their_mahalanobis_lengths(lamarckian: bool) -
     sampled step, the capped length for a repaired one): it must equal the product with the
     C^(-1/2) that the update uses, refreshed or not in between."""
     lam = 10
-    state, costs = evolved_run(np.random.default_rng(5), 3, lamarckian=lamarckian)
+    state, settings, costs = evolved_run(np.random.default_rng(5), 3, lamarckian=lamarckian)
     for g in range(4):
         # large normals, so that some samples leave the box and are repaired
-        normals = 4.0 * np.random.default_rng(10 + g).standard_normal((1, lam, D))
-        state = cma_generation(state, costs, normals, normals, 0)
-        costs = sphere(state[:lam])
-        view = read_run(state, lam)
-        expected = np.sum((view.steps @ view.inv_sqrt.T) ** 2, axis=1)
-        np.testing.assert_allclose(view.lengths, expected, rtol=1e-10)
-        repaired = ~np.isclose(view.lengths, np.sum(normals[0] ** 2, axis=1), rtol=1e-12)
+        normals = 4.0 * np.random.default_rng(10 + g).standard_normal((lam, D))
+        state = generation(state, settings, costs, normals)
+        costs = sphere(state.run.samples.points)
+        run = view(state)
+        expected = np.sum((run.steps @ run.inv_sqrt.T) ** 2, axis=1)
+        np.testing.assert_allclose(run.lengths, expected, rtol=1e-10)
+        repaired = ~np.isclose(run.lengths, np.sum(normals**2, axis=1), rtol=1e-12)
         assert repaired.any() == lamarckian
         if lamarckian:
-            assert np.all(view.lengths[repaired] <= injection_cap(D) ** 2 * (1 + 1e-12))
+            assert np.all(run.lengths[repaired] <= injection_cap(D) ** 2 * (1 + 1e-12))
 
 
 def test_the_mean_starts_at_the_warm_start() -> None:
-    rec = Recorder()
+    rec = Recorder(sphere)
     x0 = np.full(D, 4.0)
     opt = CMAES(sigma0=1e-6)
     res = opt.minimize(rec, BOX, np.random.default_rng(0), Budget(max_evaluations=21), x0)
-    assert rec.sizes == [1, 10, 10]
+    assert rec.calls == [1, 10, 10]
     assert res.nfev == 21 and np.max(np.abs(res.x - x0)) < 1e-4
 
 
 def test_a_generation_cut_short_by_the_budget_evaluates_its_first_samples() -> None:
-    rec = Recorder()
+    rec = Recorder(sphere)
     res = CMAES().minimize(rec, BOX, np.random.default_rng(0), Budget(max_evaluations=36))
-    assert rec.sizes == [1, 10, 10, 10, 5] and res.nfev == 36 and res.nit == 4
+    assert rec.calls == [1, 10, 10, 10, 5] and res.nfev == 36 and res.nit == 4
 
 
 @pytest.mark.parametrize("name", ["cma-es", "cma-es-ipop", "cma-es-bipop"])
@@ -413,23 +442,23 @@ def test_a_flat_objective_stops_runs_on_tolfun_and_restarts() -> None:
     assert res.info["stops"] and set(res.info["stops"]) == {"tolfun"}
     # a run learns from `history` generations before TolFun can apply
     assert res.info["restarts"] <= 2000 // (10 * history)
-    assert set(rec.sizes[1:-1]) == {10} and rec.sizes[-1] == 9  # the budget cuts the last
+    assert set(rec.calls[1:-1]) == {10} and rec.calls[-1] == 9  # the budget cuts the last
 
 
 def solve_with_restarts(restarts: Restarts, budget: int, seed: int = 0) -> tuple[list, list]:
     """``(batch sizes after the first point, runs)`` of a solve on the sphere."""
-    rec = Recorder()
+    rec = Recorder(sphere)
     # a loose TolFun makes runs on the sphere stop after some dozens of generations
     opt = CMAES(restarts=restarts, tol_fun=1e-2)
     res = opt.minimize(rec, BOX, np.random.default_rng(seed), Budget(max_evaluations=budget))
-    assert res.nfev == sum(rec.sizes) <= budget
+    assert res.nfev == sum(rec.calls) <= budget
     runs = res.info["runs"]
     assert len(runs) == res.info["restarts"] + 1
     assert [r["stop"] for r in runs[:-1]] == res.info["stops"] and runs[-1]["stop"] is None
     # every run learns from all of its generations but the solve's last one
     learned = sum(r["evaluations"] for r in runs)
-    assert learned == res.nfev - 1 - rec.sizes[-1]
-    return rec.sizes[1:], runs
+    assert learned == res.nfev - 1 - rec.calls[-1]
+    return rec.calls[1:], runs
 
 
 def test_same_restarts_keep_lambda() -> None:
@@ -447,9 +476,9 @@ def test_ipop_doubles_lambda_at_every_restart() -> None:
 
 def test_ipop_stops_doubling_at_the_cap() -> None:
     opt = CMAES(restarts=Restarts.IPOP)
-    state = opt.init(EvaluationCounter(sphere, D, None), BOX, np.random.default_rng(0), None, 10)
+    state = first_run(opt, BOX, np.zeros(D))
     for _ in range(MAX_DOUBLINGS + 3):
-        state = opt.restart(state, state.run, BOX, np.random.default_rng(1), "tolfun")
+        state = restart(opt, state, BOX, np.random.default_rng(1))
     assert state.plan.population_size == 10 * 2**MAX_DOUBLINGS
 
 

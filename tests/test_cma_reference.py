@@ -27,20 +27,16 @@ import functools
 
 import numpy as np
 import pytest
+from helpers import BOX, CENTRE, D, shifted_sphere
 from scipy.optimize import minimize
 from scipy.stats import mannwhitneyu, wilcoxon
 
-from formation_bench.optimizers import OPTIMIZERS, Bounds, Budget, get_optimizer
+from formation_bench.optimizers import OPTIMIZERS, Budget, get_optimizer
 
-D = 10
-BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
-CENTRE = np.linspace(-3.0, 2.0, D)
 SEEDS = range(20)
+sphere = shifted_sphere(CENTRE)
 
 
-def sphere(x: np.ndarray) -> np.ndarray:
-    z = x - CENTRE
-    return np.einsum("ij,ij->i", z, z)
 
 
 def ellipsoid(x: np.ndarray) -> np.ndarray:
@@ -89,6 +85,7 @@ def agreement(name: str) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 @pytest.mark.parametrize("name", list(FUNCTIONS))
+@pytest.mark.slow
 def test_cma_es_and_pycma_reach_the_same_quality(name: str) -> None:
     ours, reference, p = agreement(name)
     assert np.all(np.isfinite(ours)) and np.all(np.isfinite(reference))

@@ -1,10 +1,11 @@
-"""Compiled objectives and the compiled solve loops: the same result as the Python loop, to the bit.
+"""Compiled objectives and the two solve loops: the same result, to the bit.
 
-Every population optimiser with a compiled loop is solved twice from the same seed, once with
-the objective's compiled handle and once through a plain Python callable (which has none):
-the best point, its cost, the counts, the history, the message and the generator's state after
-the solve must all be equal. The evaluation rules (budget, non-finite costs, ties) are checked
-on a hand-made compiled cost.
+Every population optimiser drives its one pair of ask/tell kernels from two loops: the compiled
+one, when the objective has a compiled handle, and the Python one otherwise. Each is solved
+twice from the same seed, once with the objective's compiled handle and once through a plain
+Python callable (which has none): the best point, its cost, the counts, the history, the
+message and the generator's state after the solve must all be equal. The evaluation rules
+(budget, non-finite costs, ties) are checked on a hand-made compiled cost.
 """
 
 from __future__ import annotations
@@ -31,7 +32,6 @@ from formation_bench.optimizers import (
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.chaos import ChaoticMap
 from formation_bench.optimizers.cma_es import Restarts
-from formation_bench.optimizers.cma_ops import cma_block, cma_generation, new_run, run_template
 from formation_bench.optimizers.compiled import (
     COST_SIGNATURE,
     HAS_BEST,
@@ -42,11 +42,7 @@ from formation_bench.optimizers.compiled import (
     evaluate_prefix,
     new_tally,
 )
-from formation_bench.optimizers.population import (
-    ROWS_AHEAD,
-    CompiledStart,
-    run_compiled_draws,
-)
+from formation_bench.optimizers.population import ROWS_AHEAD
 from formation_bench.optimizers.registry import optimizer_names
 
 
@@ -310,9 +306,10 @@ BIT_GENERATORS = [np.random.PCG64, np.random.PCG64DXSM, np.random.Philox, np.ran
 
 @pytest.mark.parametrize("bit_generator", BIT_GENERATORS, ids=lambda g: g.__name__)
 def test_one_uniform_draw_is_the_separate_draws_one_after_the_other(bit_generator):
-    """What :func:`run_compiled_draws` relies on: ``random(a)``, ``random(b)``, ... give the
-    numbers of one ``random(a + b + ...)`` in order and leave the Generator in the same state;
-    an empty draw (of any shape, uniform or normal) leaves it unchanged."""
+    """What :func:`~formation_bench.optimizers.ask_tell.per_batch_draws` relies on:
+    ``random(a)``, ``random(b)``, ... give the numbers of one ``random(a + b + ...)`` in order
+    and leave the Generator in the same state; an empty draw (of any shape, uniform or normal)
+    leaves it unchanged."""
     sizes = [7, 0, 60, 1, 33, 120]
     separate, joined = (np.random.Generator(bit_generator(42)) for _ in range(2))
     parts = [separate.random(k) for k in sizes]
@@ -397,42 +394,3 @@ def test_one_generator_through_consecutive_solves_stays_in_step():
             compiled = optimizer.minimize(problem, problem.bounds, compiled_rng, budget)
             assert same_result(python, compiled), (name, budget)
     assert same_state(python_rng.bit_generator.state, compiled_rng.bit_generator.state)
-
-
-def test_a_block_that_runs_fewer_iterations_than_planned_is_an_error():
-    counts = np.array([0, 100, 1], dtype=np.int64)
-    start = CompiledStart(counts, np.zeros(3), time.perf_counter())
-
-    def lazy_block(nit, rows, uniforms, history_nfev, history_fun):
-        return rows - 1
-
-    with pytest.raises(RuntimeError, match="planned iterations"):
-        run_compiled_draws(
-            lazy_block, start, np.random.default_rng(0), Budget(max_iterations=5), 5, 10,
-            lambda evaluated: evaluated, dict,
-        )  # fmt: skip
-
-
-def test_cma_block_advances_a_copy_and_leaves_its_input_run_alone():
-    """The block advances one copy of the run in place; the caller's state is never changed."""
-    d, lam = 4, 6
-    bounds = Bounds(np.full(d, -2.0), np.full(d, 2.0))
-    template = run_template(d, lam, True, 1e-12, 1e-12, int(BoundHandling.REFLECT))
-    run = new_run(template, lam, np.full(d, 0.3), 0.2, bounds.lower, bounds.upper)
-    objective = sphere(np.linspace(-1.0, 1.0, d))
-    normals = np.random.default_rng(3).standard_normal((5, lam, d))
-    kept = run.copy()
-    counts, best = new_tally(d, None)
-    out, costs, done, stopped = cma_block(
-        objective.address, objective.data, counts, best, run, np.empty(0), normals, normals,
-        0, 1, 10, np.empty(5, dtype=np.int64), np.empty(5),
-    )  # fmt: skip
-    assert done == 5 and not stopped
-    np.testing.assert_array_equal(run, kept)
-    # the same generations one call at a time, each on a fresh copy
-    state, last = kept, np.empty(0)
-    for row in range(5):
-        state = cma_generation(state, last, normals, normals, row)
-        last = objective(state[:lam])
-    np.testing.assert_array_equal(out, state)
-    np.testing.assert_array_equal(costs, last)

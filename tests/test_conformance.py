@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import BOX, CENTRE, D, Recorder, shifted_sphere
 
 from formation_bench.instances.instants import record_instants
 from formation_bench.mpc.scenario import get_scenario
@@ -26,33 +27,12 @@ from formation_bench.optimizers import (
     optimizer_names,
 )
 
-D = 10
-BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
-CENTRE = np.linspace(-3.0, 2.0, D)  # off-centre optimum: no optimiser gets it by symmetry
+sphere = shifted_sphere(CENTRE)
 NAMES = optimizer_names()
 MISSING = OPTIMIZERS.missing()
 """Optional optimisers (the adapters) whose library is not installed here, and why."""
 
 
-def sphere(x: np.ndarray) -> np.ndarray:
-    z = x - CENTRE
-    return np.einsum("ij,ij->i", z, z)
-
-
-class Recorder:
-    """Batch objective that keeps every row it is asked to evaluate."""
-
-    def __init__(self, f=sphere) -> None:
-        self.f = f
-        self.batches: list[np.ndarray] = []
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        self.batches.append(np.array(x, copy=True))
-        return self.f(x)
-
-    @property
-    def points(self) -> np.ndarray:
-        return np.vstack(self.batches) if self.batches else np.zeros((0, D))
 
 
 def black_box(name: str) -> PopulationOptimizer:
@@ -125,7 +105,7 @@ def test_same_seed_same_result(name: str) -> None:
 @pytest.mark.parametrize("evaluations", [1, 7, 31, 100, 1001])
 def test_never_exceeds_the_evaluation_budget(name: str, evaluations: int) -> None:
     optimizer = black_box(name)
-    rec = Recorder()
+    rec = Recorder(sphere)
     res = optimizer.minimize(
         rec, BOX, np.random.default_rng(2), Budget(max_evaluations=evaluations)
     )
@@ -144,7 +124,7 @@ def test_default_budget_is_about_1300_evaluations(name: str) -> None:
 @pytest.mark.parametrize("name", NAMES)
 def test_uses_the_warm_start(name: str) -> None:
     optimizer = black_box(name)
-    rec = Recorder()
+    rec = Recorder(sphere)
     # the warm start is the optimum: only an optimiser that evaluates it reaches cost 0
     res = optimizer.minimize(rec, BOX, np.random.default_rng(5), Budget(max_evaluations=60), CENTRE)
     assert res.fun == 0.0
@@ -183,6 +163,7 @@ def test_nan_and_inf_costs_rank_below_finite_ones(name: str) -> None:
 
 
 @pytest.mark.parametrize("name", NAMES)
+@pytest.mark.slow
 def test_beats_random_search_of_the_same_budget_on_a_10d_sphere(name: str) -> None:
     if name == "random-search":
         pytest.skip("random-search is the floor itself (tests/test_random_search.py)")

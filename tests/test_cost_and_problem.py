@@ -18,7 +18,7 @@ from formation_bench.mpc.scenario import PAPER, EstimateExtension
 
 
 def random_problem(rng, scenario):
-    horizon = scenario.horizon_steps
+    horizon = scenario.timing.horizon_steps
     state = np.array(
         [rng.normal(0, 20), rng.normal(0, 20), rng.uniform(-math.pi, math.pi), rng.uniform(5, 20)]
     )

@@ -20,6 +20,7 @@ import math
 import numba as nb
 import numpy as np
 import pytest
+from helpers import BOX, D, shifted_sphere
 from scipy.optimize import differential_evolution
 from scipy.stats import wilcoxon
 
@@ -27,15 +28,10 @@ from formation_bench.instances.library import Instance, shipped
 from formation_bench.optimizers import Bounds, Budget, DifferentialEvolution, get_optimizer
 from formation_bench.optimizers.base import EvaluationCounter
 from formation_bench.optimizers.bound_handling import BoundHandling
-from formation_bench.optimizers.compiled import COST_SIGNATURE, CompiledObjective, new_tally
-from formation_bench.optimizers.de_ops import (
-    DEStrategy,
-    DEUpdating,
-    immediate_generation,
-    uniforms_per_generation,
-)
-from formation_bench.optimizers.differential_evolution import DEState
-from formation_bench.optimizers.population import RandomAhead, starting_points
+from formation_bench.optimizers.compiled import COST_SIGNATURE, new_tally
+from formation_bench.optimizers.differential_evolution import DEState, DEStrategy, DEUpdating
+from formation_bench.optimizers.population import starting_points
+from formation_bench.optimizers.tallies import Block, Draws, iterate_python
 
 # --- the immediate rule by hand --------------------------------------------------------------
 
@@ -49,7 +45,7 @@ def hand_uniforms() -> np.ndarray:
     picks the second free index: member 0's partners are (1, 3), the others' the two lowest
     other indices. CR = 1 takes every coordinate from the mutant. The re-draws are 0.9 except
     member 1's first coordinate, 0.25."""
-    u = np.zeros(uniforms_per_generation(N4, D2, resample=True))
+    u = np.zeros(HAND.uniforms_per_step(N4, D2))
     u[1] = 0.5
     for i in range(N4):
         u[i * BLOCK + 4 : (i + 1) * BLOCK] = 0.5
@@ -82,12 +78,17 @@ HAND_COSTS = [0.0, 1.25, 0.0625, 2.5625]
 
 
 def hand_state() -> DEState:
-    u = hand_uniforms()
-    return DEState(
-        x=START.copy(), f=squares(START), trials=np.empty((0, D2)), trial_costs=np.empty(0),
-        settings=HAND.de_settings(HAND_BOX), t_max=1,
-        randoms=RandomAhead(1, u[None, :], np.empty((1, 0))),
-    )  # fmt: skip
+    return DEState(START.copy(), squares(START), 0, 0, 0)
+
+
+def python_generation(
+    config: DifferentialEvolution, state: DEState, box: Bounds, u: np.ndarray, counter
+) -> DEState:
+    """One generation on the uniforms ``u``, in the Python loop of the kernels."""
+    draws = Draws(u[None, :], np.empty((1, 0)), np.empty(1, dtype=np.int64), np.empty(1))
+    after, done = iterate_python(config.kernels, state, config.params(box, 1), counter, draws, 0)
+    assert done == 1
+    return after
 
 
 @nb.cfunc(COST_SIGNATURE, cache=True)
@@ -110,25 +111,24 @@ def test_the_immediate_rule_by_hand_in_both_paths() -> None:
 
     state = hand_state()
     counter = EvaluationCounter(spy, D2, None)
-    after = HAND.step(state, counter, HAND_BOX, np.random.default_rng(0), 1)
+    after = python_generation(HAND, state, HAND_BOX, hand_uniforms(), counter)
     # one call per trial, each made from the population the earlier trials left
     assert [c.tolist() for c in calls] == [[t] for t in HAND_TRIALS]
     np.testing.assert_array_equal(after.x, HAND_TRIALS)
     np.testing.assert_array_equal(after.f, HAND_COSTS)
-    assert after.trials.shape == (0, D2)  # nothing left pending
     np.testing.assert_array_equal(state.x, START)  # the state passed in is untouched
     assert (counter.nfev, counter.best_f) == (4, 0.0)
 
-    objective = CompiledObjective(_compiled_squares.address, np.zeros(1), _compiled_squares)
     counts, best = new_tally(D2, None)
     counts[2] = 1  # a best is held (the initial population's): the point of cost 2
     best[:] = [2.0, 1.0, 1.0]
-    x, f = immediate_generation(
-        objective.address, objective.data, counts, best, state.x, state.f,
-        state.randoms.uniforms[0], state.settings,
-    )  # fmt: skip
-    np.testing.assert_array_equal(x, HAND_TRIALS)
-    np.testing.assert_array_equal(f, HAND_COSTS)
+    u = hand_uniforms()
+    block = Block(_compiled_squares.address, np.zeros(1), counts, best, u[None, :],
+                  np.empty((1, 0)), np.empty(1, dtype=np.int64), np.empty(1))  # fmt: skip
+    compiled, done = HAND.kernels.iterate(state, HAND.params(HAND_BOX, 1), block, 0, 1)
+    assert done == 1
+    np.testing.assert_array_equal(compiled.x, HAND_TRIALS)
+    np.testing.assert_array_equal(compiled.f, HAND_COSTS)
     assert counts[0] == 4 and best.tolist() == [0.0, 0.0, 0.0]
 
 
@@ -140,7 +140,7 @@ def test_the_budget_ends_an_immediate_generation_after_its_first_trials() -> Non
         return squares(x)
 
     counter = EvaluationCounter(spy, D2, 2)
-    after = HAND.step(hand_state(), counter, HAND_BOX, np.random.default_rng(0), 1)
+    after = python_generation(HAND, hand_state(), HAND_BOX, hand_uniforms(), counter)
     assert calls == [1, 1]
     np.testing.assert_array_equal(after.x, [[0.0, 0.0], [1.0, 0.5], START[2], START[3]])
     np.testing.assert_array_equal(after.f, [0.0, 1.25, 2.0, 18.0])
@@ -156,13 +156,11 @@ def test_ties_go_to_the_trial_but_leave_the_best_where_it_was() -> None:
         updating=DEUpdating.IMMEDIATE, differential_weight=1.0, bound_handling=BoundHandling.CLIP,
     )  # fmt: skip
     box = Bounds(np.full(2, -10.0), np.full(2, 10.0))
-    u = np.zeros(uniforms_per_generation(N4, D2, resample=False))
+    u = np.zeros(config.uniforms_per_step(N4, D2))
     u[1] = 0.5  # member 0's partners (1, 3): v = x2 + (x1 - x3) = (1, -1), cost 2
-    state = DEState(
-        x, squares(x), np.empty((0, 2)), np.empty(0), config.de_settings(box), 1,
-        RandomAhead(1, u[None, :], np.empty((1, 0))),
-    )  # fmt: skip
-    after = config.step(state, EvaluationCounter(squares, 2, 2), box, np.random.default_rng(0), 1)
+    state = DEState(x, squares(x), 0, 0, 0)
+    after = python_generation(config, state, box, u, EvaluationCounter(squares, 2, 2))
+    assert after.best == 2
     # member 1, partners (0, 2), best 2: v = x2 + (x0 - x2) = x0 = (1, -1), cost 2 <= 4; with
     # member 0 as the best it would be (1, -3), cost 10, and rejected
     np.testing.assert_array_equal(after.x[:2], [[1.0, -1.0], [1.0, -1.0]])
@@ -171,9 +169,7 @@ def test_ties_go_to_the_trial_but_leave_the_best_where_it_was() -> None:
 
 # --- against scipy ----------------------------------------------------------------------------
 
-D = 10
 N = 30
-BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
 # the unconstrained optimum lies outside the box in every other coordinate: the best point is
 # on a face there
 CENTRE = np.where(np.arange(D) % 2 == 0, np.linspace(5.5, 8.0, D), np.linspace(-3.0, 2.0, D))
@@ -182,9 +178,7 @@ GENERATIONS = 99  # 3000 evaluations
 SEEDS = 30
 
 
-def sphere(x: np.ndarray) -> np.ndarray:
-    z = x - CENTRE
-    return (z * z).sum(axis=-1)
+sphere = shifted_sphere(CENTRE)
 
 
 def ellipsoid(x: np.ndarray) -> np.ndarray:

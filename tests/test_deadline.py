@@ -10,7 +10,7 @@ from formation_bench.cli.main import main
 from formation_bench.experiments.suite import SuiteError, parse_suite
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import Bounds, Budget, get_optimizer
-from formation_bench.pipeline.spec import RunSpec
+from formation_bench.pipeline.spec import RunSpec, deadline_ms_of_s, deadline_s_of_ms
 
 
 def slow_sphere(x: np.ndarray) -> np.ndarray:
@@ -58,16 +58,36 @@ def test_a_bad_deadline_is_refused_naming_the_field(bad):
 def test_a_deadline_joins_the_identity_only_when_set():
     scenario, optimizer = get_scenario("paper"), get_optimizer("pso")
     plain = RunSpec.of("pso", optimizer, "paper", scenario, trigger=True, seed=0)
-    timed = RunSpec.of("pso", optimizer, "paper", scenario, trigger=True, seed=0, deadline_ms=2)
+    timed = RunSpec.of(
+        "pso", optimizer, "paper", scenario, trigger=True, seed=0, budget=Budget(deadline_s=0.002)
+    )
     assert "deadline_ms" not in plain.identity()["budget"]
-    assert timed.identity()["budget"]["deadline_ms"] == 2
+    # the identity names the deadline in milliseconds, as it always has (so keys stay)
+    assert timed.identity()["budget"]["deadline_ms"] == 2.0
     assert plain.key != timed.key and timed.budget_label == "deadline_ms=2"
     # a deadline alone caps the optimiser's own budget
-    assert timed.budget == Budget(
+    assert timed.budget_for(optimizer) == Budget(
         optimizer.default_budget.max_evaluations,
         optimizer.default_budget.max_iterations,
         deadline_s=0.002,
     )
+    assert plain.budget_for(optimizer) is None  # the optimiser's own budget, untouched
+
+
+def test_a_budget_needs_a_limit_or_a_deadline():
+    with pytest.raises(ValueError, match="set max_evaluations, max_iterations, or both"):
+        Budget()
+    own = Budget(max_iterations=40)
+    assert Budget(deadline_s=0.5).keeps_own_limits and not own.keeps_own_limits
+    assert Budget(deadline_s=0.5).within(own) == Budget(max_iterations=40, deadline_s=0.5)
+    assert Budget(100, deadline_s=0.5).within(own) == Budget(100, deadline_s=0.5)
+
+
+@pytest.mark.parametrize("deadline_ms", [0.5, 1.0, 2.0, 7.3, 0.001, 123.456, 60000.0])
+def test_milliseconds_read_into_seconds_give_back_the_milliseconds_given(deadline_ms):
+    seconds = deadline_s_of_ms(deadline_ms)
+    assert seconds == deadline_ms / 1000.0
+    assert deadline_ms_of_s(seconds) == deadline_ms
 
 
 def test_run_records_the_deadline_and_its_misses(tmp_path):
@@ -99,7 +119,7 @@ def test_a_suite_budget_may_be_a_deadline(tmp_path):
     text = 'seeds = 1\nbudgets = [{ deadline_ms = 2 }, "default"]\n'
     text += '[[optimizers]]\nname = "pso"\n[[scenarios]]\nname = "paper"\n'
     suite = parse_suite(text, tmp_path / "s.toml")
-    assert suite.budgets == ((None, None, 2.0), (None, None, None))
+    assert suite.budgets == (Budget(deadline_s=0.002), None)  # read into seconds
     bad = text.replace("deadline_ms = 2", "deadline_ms = 0")
     with pytest.raises(SuiteError, match=r"budgets\[0\]\.deadline_ms: must be a number"):
         parse_suite(bad, tmp_path / "s.toml")

@@ -13,6 +13,7 @@ import textwrap
 
 import numpy as np
 import pytest
+from helpers import BOX, D, shifted_sphere
 from scipy.optimize import differential_evolution
 from scipy.stats import mannwhitneyu
 
@@ -21,21 +22,19 @@ from formation_bench.instances.library import shipped
 from formation_bench.optimizers import Bounds, Budget, DifferentialEvolution, get_optimizer
 from formation_bench.optimizers.base import EvaluationCounter
 from formation_bench.optimizers.bound_handling import BoundHandling
-from formation_bench.optimizers.de_ops import (
+from formation_bench.optimizers.differential_evolution import (
     PARTNER_UNIFORMS,
     PER_SOLVE,
     DEConfig,
     DESettings,
+    DEState,
     DEStrategy,
     DEUpdating,
-    de_block,
-    de_generation,
-    distinct_partners,
-    immediate_trial,
-    make_trial,
-    make_trials,
-    select_trials,
-    uniforms_per_generation,
+    de_ask,
+    de_tell,
+    mutant_into,
+    partners_into,
+    redraws_of,
 )
 from formation_bench.optimizers.population import WarmStartInit
 
@@ -71,9 +70,35 @@ def trials_by_hand(x, best, strategy, F, CR, u):
     return out
 
 
+def uniforms_per_generation(n: int, d: int, resample: bool) -> int:
+    mode = BoundHandling.RESAMPLE if resample else BoundHandling.CLIP
+    return DifferentialEvolution(bound_handling=mode).uniforms_per_step(n, d)
+
+
+def costs_with_best(n: int, best: int) -> np.ndarray:
+    f = np.zeros(n)
+    f[best] = -1.0
+    return f
+
+
+def config_and_params(strategy, F, CR, mode, box, updating=DEUpdating.DEFERRED):
+    config = DifferentialEvolution(
+        strategy=DEStrategy(strategy), differential_weight=F, crossover_rate=CR,
+        bound_handling=mode, updating=updating,
+    )  # fmt: skip
+    return config, config.params(box, 1)
+
+
 def trials(x, u, strategy=RAND, F=0.5, CR=0.9, best=0, mode=BoundHandling.CLIP, box=WIDE):
-    d = x.shape[1]
-    return make_trials(x, best, strategy, F, CR, int(mode), np.full(d, -box), np.full(d, box), u)
+    """A deferred generation's trials (``de_ask``) on the population ``x`` whose best is
+    ``best``."""
+    n, d = x.shape
+    bounds = Bounds(np.full(d, -box), np.full(d, box))
+    _, params = config_and_params(strategy, F, CR, mode, bounds)
+    state = DEState(x, costs_with_best(n, best), 0, 0, 0)
+    _, got, last = de_ask(state, params, u, np.empty(0), 1, 10**9)
+    assert last  # one round per deferred generation
+    return got
 
 
 def test_partners_cover_every_ordered_choice_once_and_never_the_member() -> None:
@@ -82,13 +107,14 @@ def test_partners_cover_every_ordered_choice_once_and_never_the_member() -> None
     for a, b, c in itertools.product(range(5), range(4), range(3)):
         u = np.array([(a + 0.5) / 5, (b + 0.5) / 4, (c + 0.5) / 3])
         out = np.empty(3, dtype=np.int64)
-        distinct_partners(i, n, u, out)
+        partners_into(i, n, u, out, np.empty(4, dtype=np.int64))
         assert list(out) == partners_by_hand(i, n, list(u))
         seen.append(tuple(out))
     others = [k for k in range(n) if k != i]
     assert sorted(seen) == sorted(itertools.permutations(others, 3))
     edge = np.empty(3, dtype=np.int64)
-    distinct_partners(5, n, np.array([1.0 - 1e-17, 1.0, 1.0]), edge)  # u = 1 stays in range
+    partners_into(5, n, np.array([1.0 - 1e-17, 1.0, 1.0]), edge, np.empty(4, dtype=np.int64))
+    # u = 1 stays in range
     assert sorted(edge) == [2, 3, 4]
 
 
@@ -150,13 +176,16 @@ def test_selection_prefers_the_trial_on_ties_and_never_a_nan() -> None:
     f = np.array([1.0, 2.0, 3.0, np.inf])
     t = -x
     tf = np.array([1.0, 2.5, np.inf, 7.0])
-    new_x, new_f = select_trials(x, f, t, tf)
-    np.testing.assert_array_equal(new_f, [1.0, 2.0, 3.0, 7.0])
-    np.testing.assert_array_equal(new_x, [t[0], x[1], x[2], t[3]])
+    _, params = config_and_params(RAND, 0.5, 0.9, BoundHandling.CLIP, Bounds(-x[-1], x[-1]))
+    state = DEState(x, f, 0, 0, 0)
+    after = de_tell(state, params, t, tf, 1)
+    np.testing.assert_array_equal(after.f, [1.0, 2.0, 3.0, 7.0])
+    np.testing.assert_array_equal(after.x, [t[0], x[1], x[2], t[3]])
+    np.testing.assert_array_equal(state.x, np.arange(8.0).reshape(4, 2))  # not modified
     # a generation the budget cut short: only the evaluated trials compete
-    cut_x, cut_f = select_trials(x, f, t[:1], np.array([0.0]))
-    np.testing.assert_array_equal(cut_f, [0.0, 2.0, 3.0, np.inf])
-    np.testing.assert_array_equal(cut_x[1:], x[1:])
+    cut = de_tell(state, params, t, np.array([0.0]), 1)
+    np.testing.assert_array_equal(cut.f, [0.0, 2.0, 3.0, np.inf])
+    np.testing.assert_array_equal(cut.x[1:], x[1:])
 
 
 def test_a_generation_selects_first_then_mutates_around_the_new_best() -> None:
@@ -167,10 +196,13 @@ def test_a_generation_selects_first_then_mutates_around_the_new_best() -> None:
     f = np.arange(n, dtype=float)
     winner = np.array([[9.0, 9.0]])
     u = np.random.default_rng(4).random(config.uniforms_per_step(n, d))
-    x1, f1, t1 = de_generation(x, f, winner, np.array([-1.0]), u, config.de_settings(box))
-    np.testing.assert_array_equal(x1[0], winner[0])
-    assert f1[0] == -1.0
-    np.testing.assert_allclose(t1, trials_by_hand(x1, 0, TO_BEST, 0.5, 0.9, u), rtol=1e-13)
+    params = config.params(box, 1)
+    selected = de_tell(DEState(x, f, 0, 0, 0), params, winner, np.array([-1.0]), 1)
+    np.testing.assert_array_equal(selected.x[0], winner[0])
+    assert selected.f[0] == -1.0
+    _, t1, _ = de_ask(selected, params, u, np.empty(0), 2, 10**9)
+    np.testing.assert_allclose(t1, trials_by_hand(selected.x, 0, TO_BEST, 0.5, 0.9, u),
+                               rtol=1e-13)  # fmt: skip
 
 
 def test_configuration_and_registered_variants() -> None:
@@ -208,22 +240,19 @@ def test_the_kernels_read_exactly_their_declared_settings_by_name() -> None:
     declared = set(kernel_field_names(DEConfig)) | set(PER_SOLVE)
     assert declared == set(DESettings._fields)
     read = set()
-    for kernel in (de_generation, immediate_trial, de_block):
+    for kernel in (de_ask, de_tell, mutant_into, redraws_of):
         tree = ast.parse(textwrap.dedent(inspect.getsource(kernel.py_func)))
         read |= {
             node.attr
             for node in ast.walk(tree)
             if isinstance(node, ast.Attribute) and getattr(node.value, "id", None) == "s"
         }
-        handed_on = [
-            (kw.arg, kw.value.attr)
-            for call in ast.walk(tree)
-            if isinstance(call, ast.Call)
-            for kw in call.keywords
-            if isinstance(kw.value, ast.Attribute)
-        ]
-        assert all(arg == attr for arg, attr in handed_on), kernel
     assert read == declared
+
+
+def test_no_kernel_takes_more_than_eight_positional_arguments() -> None:
+    for kernel in (de_ask, de_tell, mutant_into, partners_into, redraws_of):
+        assert len(inspect.signature(kernel.py_func).parameters) <= 8, kernel
 
 
 def test_random_numbers_per_generation_follow_the_layout() -> None:
@@ -249,18 +278,28 @@ def test_random_numbers_per_generation_follow_the_layout() -> None:
 @pytest.mark.parametrize("mode", list(BoundHandling))
 def test_a_single_trial_is_the_row_of_a_generation_of_trials(strategy, mode) -> None:
     """Immediate updating makes the trials one at a time from the same numbers as a deferred
-    generation: on the same population each is that generation's row, to the bit."""
+    generation: on the same population and best member each is that generation's row, to the
+    bit."""
     rng = np.random.default_rng(5)
     n, d = 6, 4
     x = rng.uniform(-1.0, 1.0, size=(n, d))
+    f = costs_with_best(n, 2)
     u = rng.random(uniforms_per_generation(n, d, resample=True))
-    lower, upper = np.full(d, -1.0), np.full(d, 1.0)
-    args = (strategy, 0.9, 0.8, int(mode), lower, upper, u)
-    every = make_trials(x, 2, *args)
-    unbounded = make_trials(x, 2, strategy, 0.9, 0.8, int(mode), 10 * lower, 10 * upper, u)
-    assert np.any(np.abs(unbounded) > 1.0)  # the bound handling has work to do
+    box = Bounds(np.full(d, -1.0), np.full(d, 1.0))
+    _, deferred = config_and_params(strategy, 0.9, 0.8, mode, box)
+    _, immediate = config_and_params(strategy, 0.9, 0.8, mode, box, DEUpdating.IMMEDIATE)
+    _, every, _ = de_ask(DEState(x, f, 0, 0, 0), deferred, u, np.empty(0), 1, 10**9)
+    _, unbounded = config_and_params(strategy, 0.9, 0.8, mode, Bounds(-10 * box.upper,
+                                                                       10 * box.upper))  # fmt: skip
+    _, wide, _ = de_ask(DEState(x, f, 0, 0, 0), unbounded, u, np.empty(0), 1, 10**9)
+    assert np.any(np.abs(wide) > 1.0)  # the bound handling has work to do
+    state = DEState(x, f, 0, 0, 0)
     for i in range(n):
-        np.testing.assert_array_equal(make_trial(x, i, 2, *args), every[i : i + 1])
+        state, trial, last = de_ask(state, immediate, u, np.empty(0), 1, 10**9)
+        assert (state.member, state.best, last) == (i, 2, i == n - 1)
+        np.testing.assert_array_equal(trial, every[i : i + 1])
+    # the last evaluation left ends the generation
+    assert de_ask(DEState(x, f, 0, 0, 0), immediate, u, np.empty(0), 1, 1)[2]
 
 
 def test_immediate_updating_evaluates_one_trial_at_a_time_within_the_budget() -> None:
@@ -357,17 +396,13 @@ def test_the_warm_start_settings_shape_the_initial_population() -> None:
 
 # --- agreement with scipy.optimize.differential_evolution ----------------------------------------
 
-D = 10
-BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
 SHIFT = np.linspace(-3.0, 2.0, D)
 AXIS_SCALES = 10.0 ** (6.0 * np.arange(D) / (D - 1))
 EVALUATIONS = 3000  # N = 30: the initial population and 99 generations
 SEEDS = 15
 
 
-def sphere(x: np.ndarray) -> np.ndarray:
-    z = x - SHIFT
-    return (z * z).sum(axis=-1)
+sphere = shifted_sphere(SHIFT)
 
 
 def ellipsoid(x: np.ndarray) -> np.ndarray:

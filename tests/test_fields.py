@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import json
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -176,404 +179,108 @@ def test_the_old_helpers_are_still_importable_from_base():
         assert getattr(base, name) is getattr(fields, name)
 
 
-# --- the registry: every name still maps to the configuration it had -------------------------
-# Written out rather than computed so that a default or a variant changed while its settings
-# were moved into declarations shows up here: for every registered name, the class, the
-# description and the fields that differ from the class's defaults, and every class's defaults
-# (enum members by lower-case name).
+# --- the registry keeper: every name maps to the configuration recorded for it ----------------
+# tests/data/registry.json records, for every registered name, the class, the description and
+# the fields that differ from the class's defaults, and every class's defaults (enum members by
+# lower-case name), so that a default or a variant changed by accident shows up here. A name
+# registered since is recorded by the keeper itself (the test fails once, saying so); a change
+# to a recorded name fails until it is accepted with FORMATION_BENCH_ACCEPT_REGISTRY=1.
 
-REGISTERED = {
-    "chaotic-pso": (
-        "PSO",
-        "Chaotic PSO (after Alatas et al. 2009): logistic r1, r2 and chaotic inertia weight",
-        {"chaotic_coefficients": True, "chaotic_inertia": True},
-    ),
-    "chaotic-pso-coefficients": (
-        "PSO",
-        "Chaotic PSO: logistic sequences for r1, r2 only (linear inertia 0.9 -> 0.4)",
-        {"chaotic_coefficients": True},
-    ),
-    "chaotic-pso-inertia": (
-        "PSO",
-        "Chaotic PSO: Feng et al.'s chaotic inertia weight only (uniform r1, r2)",
-        {"chaotic_inertia": True},
-    ),
-    "cls-bso": (
-        "ChaoticLocalSearchBSO",
-        "Shi's BSO + chaotic local search around the best idea (after CBSO, Yu et al. 2018)",
-        {},
-    ),
-    "cma-es": (
-        "CMAES",
-        "CMA-ES (Hansen's tutorial, active) with pycma's constants and BoundTransform, "
-        "sigma0 0.2 x range, restarts same lambda",
-        {},
-    ),
-    "cma-es-bipop": (
-        "CMAES",
-        "BIPOP-CMA-ES: large and small population restarts interleaved (Hansen 2009)",
-        {"restarts": "bipop"},
-    ),
-    "cma-es-ipop": (
-        "CMAES",
-        "IPOP-CMA-ES: restarts doubling the population (Auger & Hansen 2005)",
-        {"restarts": "ipop"},
-    ),
-    "cma-es-warm": (
-        "CMAES",
-        "CMA-ES for a nearly right warm start: sigma0 0.02 x range (tuned on the validation split)",
-        {"sigma0": 0.02},
-    ),
-    "de": (
-        "DifferentialEvolution",
-        "Differential evolution DE/rand/1/bin (Storn & Price 1997), N = 30, F = 0.5, CR = 0.9",
-        {},
-    ),
-    "de-current-to-best": (
-        "DifferentialEvolution",
-        "Differential evolution DE/current-to-best/1/bin, N = 30, F = 0.5, CR = 0.9",
-        {"strategy": "current_to_best_1_bin"},
-    ),
-    "de-immediate": (
-        "DifferentialEvolution",
-        "Differential evolution DE/rand/1/bin, N = 30, F = 0.5, CR = 0.9, immediate updating "
-        "(each trial selected before the next is made: scipy's default)",
-        {"updating": "immediate"},
-    ),
-    "de-immediate-warm": (
-        "DifferentialEvolution",
-        "de-immediate with 90% of the initial population drawn around the warm start (std "
-        "0.02 x range), the rest uniform",
-        {"updating": "immediate", "warm_start_share": 0.9, "warm_start_spread": 0.02},
-    ),
-    "ipopt": (
-        "IpoptOptimizer",
-        "IPOPT (CasADi nlpsol) on eq. (14), single shooting, warm primal + dual start; baseline",
-        {},
-    ),
-    "ltv-osqp": (
-        "LtvOsqpOptimizer",
-        "Linear time-varying MPC: QP linearised about the shifted plan, OSQP, 1 SQP round; "
-        "baseline",
-        {},
-    ),
-    "modified-bso": (
-        "ModifiedBSO",
-        "Modified BSO of the paper: chaotic centre replacement + chaotic all-centre weighting",
-        {},
-    ),
-    "modified-bso-chebyshev": (
-        "ModifiedBSO",
-        "Modified BSO with the chebyshev map as f_rmap and f_hmap",
-        {"replacement_map": "chebyshev", "weight_map": "chebyshev"},
-    ),
-    "modified-bso-circle": (
-        "ModifiedBSO",
-        "Modified BSO with the circle map as f_rmap and f_hmap",
-        {"replacement_map": "circle", "weight_map": "circle"},
-    ),
-    "modified-bso-gauss": (
-        "ModifiedBSO",
-        "Modified BSO with the gauss map as f_rmap and f_hmap",
-        {"replacement_map": "gauss", "weight_map": "gauss"},
-    ),
-    "modified-bso-iterative": (
-        "ModifiedBSO",
-        "Modified BSO with the iterative map as f_rmap and f_hmap",
-        {"replacement_map": "iterative", "weight_map": "iterative"},
-    ),
-    "modified-bso-no-all-centre": (
-        "ModifiedBSO",
-        "Modified BSO ablation: Shi's idea selection instead of all-centre weighting (eqs. 8-9)",
-        {"all_centre_weighting": False},
-    ),
-    "modified-bso-no-chaos-replacement": (
-        "ModifiedBSO",
-        "Modified BSO ablation: without the chaotic centre replacement (eqs. 6-7)",
-        {"chaos_replacement": False},
-    ),
-    "modified-bso-no-modifications": (
-        "ModifiedBSO",
-        "Modified BSO with both modifications off (Shi's BSO without random centre replacement)",
-        {"all_centre_weighting": False, "chaos_replacement": False},
-    ),
-    "modified-bso-piecewise": (
-        "ModifiedBSO",
-        "Modified BSO with the piecewise map as f_rmap and f_hmap",
-        {"replacement_map": "piecewise", "weight_map": "piecewise"},
-    ),
-    "modified-bso-raw-weights": (
-        "ModifiedBSO",
-        "Modified BSO with the raw, unnormalised chaotic weights printed in eq. (9)",
-        {"normalise_weights": False},
-    ),
-    "modified-bso-sine": (
-        "ModifiedBSO",
-        "Modified BSO with the sine map as f_rmap and f_hmap",
-        {"replacement_map": "sine", "weight_map": "sine"},
-    ),
-    "modified-bso-singer": (
-        "ModifiedBSO",
-        "Modified BSO with the singer map as f_rmap and f_hmap",
-        {"replacement_map": "singer", "weight_map": "singer"},
-    ),
-    "modified-bso-sinusoidal": (
-        "ModifiedBSO",
-        "Modified BSO with the sinusoidal map as f_rmap and f_hmap",
-        {"replacement_map": "sinusoidal", "weight_map": "sinusoidal"},
-    ),
-    "modified-bso-tent": (
-        "ModifiedBSO",
-        "Modified BSO with the tent map as f_rmap and f_hmap",
-        {"replacement_map": "tent", "weight_map": "tent"},
-    ),
-    "original-bso": (
-        "OriginalBSO",
-        "Shi's (2011) BSO as published: k-means, random-point centre replacement, "
-        "logsig N(0,1) step",
-        {},
-    ),
-    "original-bso-range-step": (
-        "OriginalBSO",
-        "Shi's BSO with the modified BSO's step (0.1 x range instead of N(0, 1))",
-        {"step_relative_to_range": True, "step_scale": 0.1},
-    ),
-    "original-bso-warm": (
-        "OriginalBSO",
-        "original-bso with 90% of the initial ideas drawn around the warm start (std 0.005 x "
-        "range), the rest uniform; not Shi's start",
-        {"warm_start_share": 0.9, "warm_start_spread": 0.005},
-    ),
-    "pso": (
-        "PSO",
-        "Global-best PSO, inertia 0.9 -> 0.4, c1 = c2 = 2, velocity clamp 0.2 x range, clip",
-        {},
-    ),
-    "pso-constriction": (
-        "PSO",
-        "Global-best PSO with Clerc-Kennedy constriction (chi = 0.7298, c1 = c2 = 1.49618)",
-        {"c1": 1.49618, "c2": 1.49618, "inertia_end": 0.7298, "inertia_start": 0.7298},
-    ),
-    "random-search": (
-        "RandomSearch",
-        "Uniform random search, 30 points per batch (the floor every optimiser must beat)",
-        {},
-    ),
-    # the adapters (registered when their library is installed: the adapters extra)
-    "mealpy-bso": (
-        "MealpyOptimizer",
-        "mealpy's OriginalBSO (Shi's BSO as mealpy publishes it), pop 30",
-        {},
-    ),
-    "mealpy-gwo": (
-        "MealpyOptimizer",
-        "mealpy's grey wolf optimizer (OriginalGWO), pop 30",
-        {"algorithm": "OriginalGWO"},
-    ),
-    "modified-bso-warm": (
-        "ModifiedBSO",
-        "modified-bso with 90% of the initial population drawn around the warm start (std "
-        "0.005 x range), the rest uniform; not the paper's start",
-        {"warm_start_share": 0.9, "warm_start_spread": 0.005},
-    ),
-    "ng-de": (
-        "NevergradOptimizer",
-        "nevergrad's TwoPointsDE (its DE for parallel settings), 30 per batch",
-        {"algorithm": "TwoPointsDE"},
-    ),
-    "ng-ngopt": (
-        "NevergradOptimizer",
-        "nevergrad's NGOpt (picks its algorithm for the dimension and budget), 30 per batch",
-        {},
-    ),
-    "pso-warm": (
-        "PSO",
-        "pso with 90% of the initial swarm drawn around the warm start (std 0.005 x range), "
-        "the rest uniform",
-        {"warm_start_share": 0.9, "warm_start_spread": 0.005},
-    ),
-    "pycma": (
-        "PyCMA",
-        "pycma's CMA-ES (BoundTransform, default popsize), restarts with the same popsize",
-        {},
-    ),
-}
-
-CLASS_DEFAULTS = {
-    "CMAES": {
-        "active": True,
-        "bound_handling": "transform",
-        "constants": "pycma",
-        "lamarckian": False,
-        "max_evaluations": 1230,
-        "population_size": None,
-        "restarts": "same",
-        "sigma0": 0.2,
-        "tol_fun": 1e-12,
-        "tol_x": 1e-12,
-    },
-    "ChaoticLocalSearchBSO": {
-        "bound_handling": "clip",
-        "kmeans_max_iter": 100,
-        "local_map": "logistic",
-        "local_radius_end": 0.001,
-        "local_radius_start": 0.1,
-        "max_iterations": 40,
-        "n_clusters": 5,
-        "n_local": 5,
-        "p_one_centre": 0.4,
-        "p_one_cluster": 0.8,
-        "p_replace": 0.2,
-        "p_two_centres": 0.5,
-        "population_size": 25,
-        "slope": 20.0,
-        "step_relative_to_range": False,
-        "step_scale": 1.0,
-        "warm_start_share": 0.0,
-        "warm_start_spread": 0.05,
-    },
-    "DifferentialEvolution": {
-        "bound_handling": "resample",
-        "crossover_rate": 0.9,
-        "differential_weight": 0.5,
-        "max_iterations": 40,
-        "population_size": 30,
-        "strategy": "rand_1_bin",
-        "updating": "deferred",
-        "warm_start_share": 0.0,
-        "warm_start_spread": 0.05,
-    },
-    "IpoptOptimizer": {
-        "acceptable_tol": 0.0001,
-        "bound_push": 1e-06,
-        "ipopt_options": (),
-        "jit": False,
-        "max_iter": 100,
-        "mu_init": 0.0001,
-        "mu_strategy": "adaptive",
-        "shooting": "single",
-        "tol": 1e-06,
-        "warm_start_duals": True,
-    },
-    "LtvOsqpOptimizer": {
-        "eps_abs": 0.0001,
-        "eps_rel": 0.0001,
-        "form": "condensed",
-        "max_iter": 20000,
-        "polishing": None,
-        "sqp_iterations": 1,
-    },
-    "ModifiedBSO": {
-        "all_centre_weighting": True,
-        "bound_handling": "clip",
-        "chaos_replacement": True,
-        "clustering": "compiled",
-        "kmeans_max_iter": 100,
-        "max_iterations": 40,
-        "n_clusters": 5,
-        "n_replace": 10,
-        "n_weight_iterations": 10,
-        "normalise_weights": True,
-        "p_one_centre": 0.4,
-        "p_one_cluster": 0.8,
-        "p_replace": 0.2,
-        "p_two_centres": 0.5,
-        "population_size": 30,
-        "replacement_map": "logistic",
-        "slope": 20.0,
-        "step_relative_to_range": True,
-        "step_scale": 0.1,
-        "weight_map": "logistic",
-        "warm_start_share": 0.0,
-        "warm_start_spread": 0.05,
-    },
-    "OriginalBSO": {
-        "bound_handling": "clip",
-        "kmeans_max_iter": 100,
-        "max_iterations": 40,
-        "n_clusters": 5,
-        "p_one_centre": 0.4,
-        "p_one_cluster": 0.8,
-        "p_replace": 0.2,
-        "p_two_centres": 0.5,
-        "population_size": 30,
-        "slope": 20.0,
-        "step_relative_to_range": False,
-        "step_scale": 1.0,
-        "warm_start_share": 0.0,
-        "warm_start_spread": 0.05,
-    },
-    "PSO": {
-        "bound_handling": "clip",
-        "c1": 2.0,
-        "c2": 2.0,
-        "chaotic_coefficients": False,
-        "chaotic_inertia": False,
-        "coefficient_map": "logistic",
-        "inertia_end": 0.4,
-        "inertia_map": "logistic",
-        "inertia_start": 0.9,
-        "max_iterations": 40,
-        "population_size": 30,
-        "velocity_clamp": 0.2,
-        "warm_start_share": 0.0,
-        "warm_start_spread": 0.05,
-    },
-    "RandomSearch": {
-        "max_iterations": 40,
-        "population_size": 30,
-    },
-    "MealpyOptimizer": {
-        "algorithm": "OriginalBSO",
-        "max_evaluations": 1230,
-        "population_size": 30,
-    },
-    "NevergradOptimizer": {
-        "algorithm": "NGOpt",
-        "batch_size": 30,
-        "max_evaluations": 1230,
-    },
-    "PyCMA": {
-        "max_evaluations": 1230,
-        "population_size": None,
-        "sigma0": 0.2,
-    },
-}
+REGISTRY_FILE = Path(__file__).parent / "data" / "registry.json"
+ACCEPT = "FORMATION_BENCH_ACCEPT_REGISTRY"
 
 
 def plain(value: object) -> object:
-    return value.name.lower() if isinstance(value, enum.Enum) else value
+    value = value.name.lower() if isinstance(value, enum.Enum) else value
+    return json.loads(json.dumps(value))  # tuples as lists, as the file holds them
 
 
 def field_values(obj: object) -> dict[str, object]:
     return {f.name: plain(getattr(obj, f.name)) for f in config_fields(obj)}
 
 
-def test_the_registry_holds_the_same_names():
-    # an adapter whose library is not installed is noted as missing instead
-    assert sorted(OPTIMIZERS) == sorted(set(REGISTERED) - set(OPTIMIZERS.missing()))
+def registry_now() -> dict[str, dict]:
+    """The registry as the file records it (adapters whose library is missing left out)."""
+    optimizers: dict[str, dict] = {}
+    defaults: dict[str, dict] = {}
+    for name in sorted(OPTIMIZERS):
+        entry = OPTIMIZERS[name]
+        class_name = type(entry.optimizer).__name__
+        defaults[class_name] = field_values(type(entry.optimizer)())
+        values = field_values(entry.optimizer)
+        optimizers[name] = {
+            "class": class_name,
+            "description": entry.description,
+            "overrides": {k: v for k, v in values.items() if v != defaults[class_name].get(k)},
+        }
+    return {"optimizers": optimizers, "class_defaults": dict(sorted(defaults.items()))}
 
 
-@pytest.mark.parametrize("name", sorted(REGISTERED))
-def test_a_registered_name_maps_to_the_same_configuration(name: str):
-    if name in OPTIMIZERS.missing():
-        pytest.skip(f"{name}: {OPTIMIZERS.missing()[name]}")
-    class_name, description, overrides = REGISTERED[name]
-    entry = OPTIMIZERS[name]
-    assert type(entry.optimizer).__name__ == class_name
-    assert entry.description == description
-    assert field_values(entry.optimizer) == {**CLASS_DEFAULTS[class_name], **overrides}
+def registry_changes(recorded: dict, now: dict, missing: set[str]) -> tuple[list[str], list[str]]:
+    """``(added, changed)``: names (and classes) new since the record, and every difference
+    from it, each as a line saying what differs. Names in ``missing`` (adapters whose library
+    is not installed) and classes only they use are not expected."""
+    expected_classes = {
+        v["class"] for k, v in recorded["optimizers"].items() if k not in missing
+    }
+    added, changed = [], []
+    for section in ("optimizers", "class_defaults"):
+        old, new = recorded[section], now[section]
+        expected = (set(old) - missing) if section == "optimizers" else expected_classes
+        for key in sorted(set(old) | set(new)):
+            if key not in new:
+                if key in expected:
+                    changed.append(f"{section}: {key} is recorded but no longer registered")
+            elif key not in old:
+                added.append(f"{section}: {key}")
+            elif old[key] != new[key]:
+                changed.append(f"{section}: {key} was {old[key]}, is now {new[key]}")
+    return added, changed
 
 
-@pytest.mark.parametrize("class_name", sorted(CLASS_DEFAULTS))
-def test_declared_defaults_are_the_previous_defaults(class_name: str):
-    optimizer = next(
-        (e.optimizer for e in OPTIMIZERS.values() if type(e.optimizer).__name__ == class_name),
-        None,
+def test_the_registry_is_the_recorded_one():
+    recorded = json.loads(REGISTRY_FILE.read_text())
+    now = registry_now()
+    missing = set(OPTIMIZERS.missing())
+    added, changed = registry_changes(recorded, now, missing)
+    accept = os.environ.get(ACCEPT) == "1"
+    if added or (changed and accept):
+        merged = {
+            section: now[section] if accept else {**recorded[section], **now[section]}
+            for section in ("optimizers", "class_defaults")
+        }
+        REGISTRY_FILE.write_text(json.dumps(merged, indent=1, sort_keys=True) + "\n")
+    if added and not accept:
+        pytest.fail(
+            f"recorded {len(added)} new registry entries in {REGISTRY_FILE.name}: "
+            + "; ".join(added)
+            + ". Check the recorded configuration, commit the file and run the tests again."
+        )
+    assert accept or not changed, (
+        "the registry differs from tests/data/registry.json:\n  "
+        + "\n  ".join(changed)
+        + f"\nIf the change is meant, run the tests once with {ACCEPT}=1 and commit the file."
     )
-    if optimizer is None:
-        pytest.skip(f"no {class_name} is registered here (an adapter whose library is missing)")
-    assert field_values(type(optimizer)()) == CLASS_DEFAULTS[class_name]
+
+
+def test_the_keeper_tells_new_names_from_changed_ones():
+    recorded = {
+        "optimizers": {"a": {"class": "A", "description": "x", "overrides": {}}},
+        "class_defaults": {"A": {"n": 1}},
+    }
+    now = {
+        "optimizers": {
+            "a": {"class": "A", "description": "y", "overrides": {}},
+            "b": {"class": "A", "description": "z", "overrides": {"n": 2}},
+        },
+        "class_defaults": {"A": {"n": 1}},
+    }
+    added, changed = registry_changes(recorded, now, set())
+    assert added == ["optimizers: b"]
+    assert len(changed) == 1 and "a was" in changed[0] and "'y'" in changed[0]
+    gone, changed = registry_changes(now, recorded, set())
+    assert gone == [] and any("b is recorded but no longer registered" in c for c in changed)
+    assert not any("b is recorded" in c for c in registry_changes(now, recorded, {"b"})[1])
 
 
 @dataclasses.dataclass(frozen=True)

@@ -34,7 +34,7 @@ PAPER_BOUNDS = LocalProblem(
 
 
 def random_problem(rng: np.random.Generator, scenario, uav: int = 0) -> LocalProblem:
-    horizon, n_nb = scenario.horizon_steps, scenario.n_uav - 1
+    horizon, n_nb = scenario.timing.horizon_steps, scenario.n_uav - 1
     state = np.array(
         [rng.normal(0, 20), rng.normal(0, 20), rng.uniform(-math.pi, math.pi), rng.uniform(5, 20)]
     )
@@ -307,6 +307,7 @@ def test_deterministic_picklable_and_run_independent(name):
     assert not first.solve_failed.any()
 
 
+@pytest.mark.slow
 def test_cli_runs_both_baselines_with_and_without_trigger(tmp_path, capfd):
     short = ["--set", "n_steps=15", "--set", "settle_time_s=1.0"]
     for name in ("ipopt", "ltv-osqp"):

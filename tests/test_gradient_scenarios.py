@@ -55,13 +55,13 @@ def group_problem(
     ``near``: the UAV starts by the obstacles of :data:`PENALISED` and the neighbours'
     estimates follow its coasting trajectory a few metres off, so the penalties are active.
     """
-    horizon = scenario.horizon_steps
+    horizon = scenario.timing.horizon_steps
     state = np.array(
         [rng.normal(0, 20), rng.normal(0, 20), rng.uniform(-math.pi, math.pi), rng.uniform(5, 20)]
     )
     if near:
         state[:2] = rng.normal(0, 6, size=2)
-        coasting = rollout(state, np.zeros((horizon, 2)), scenario.period_s, 1)[1:, :2]
+        coasting = rollout(state, np.zeros((horizon, 2)), scenario.timing.period_s, 1)[1:, :2]
         neighbours = coasting + rng.normal(0, 4, size=(n_neighbours, horizon, 2))
     else:
         neighbours = rng.normal(0, 30, size=(n_neighbours, horizon, 2))
@@ -101,7 +101,7 @@ def graph_instants():
 
 def test_centre_group_and_sum_equal_the_old_formula_on_the_complete_graph():
     rng = np.random.default_rng(7)
-    horizon = PAPER.horizon_steps
+    horizon = PAPER.timing.horizon_steps
     problem = LocalProblem(
         PAPER, 1, np.array([1.0, 2.0, 0.3, 15.0]), rng.normal(0, 30, size=(2, horizon, 2)),
         rng.normal(0, 10, size=(2, horizon, 2)), rng.normal(0, 30, size=(horizon, 2)),
@@ -251,8 +251,8 @@ def test_a_solve_keeps_to_the_uavs_own_bounds(name):
     """UAV 2 flies at 15 m/s behind a formation at 10 m/s and may brake at most 0.5 m/s^2."""
     tight = ((-7.0, 7.0), (-0.5, 7.0), (-7.0, 7.0))
     scenario = PAPER.with_overrides(uav_accel_bounds=tight)
-    horizon = scenario.horizon_steps
-    times = scenario.period_s * np.arange(1, horizon + 1)
+    horizon = scenario.timing.horizon_steps
+    times = scenario.timing.period_s * np.arange(1, horizon + 1)
     reference = np.column_stack((10.0 * times, np.zeros(horizon)))
     side = np.array([0.0, 10.0])
     neighbours = np.stack([reference + side, reference - side])
@@ -344,6 +344,7 @@ def test_a_used_instance_solves_like_a_fresh_one_across_shapes(name):
 
 @pytest.mark.parametrize("name", ["ipopt", "ltv-osqp"])
 @pytest.mark.parametrize("graph", ["range", "k-nearest"])
+@pytest.mark.slow
 def test_closed_loop_on_partial_graphs(name, graph):
     scenario = get_scenario("swarm-10", n_steps=25, settle_time_s=0.0, **GRAPHS[graph])
     first = simulate(scenario, NEW[name](), trigger=True, seed=0)

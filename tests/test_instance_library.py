@@ -25,7 +25,7 @@ from formation_bench.instances.library import (
     shipped,
 )
 from formation_bench.mpc.problem import LocalProblem
-from formation_bench.mpc.scenario import Scenario, get_scenario
+from formation_bench.mpc.scenario import GROUPS, Scenario, get_scenario
 from formation_bench.optimizers import OPTIMIZERS, get_optimizer
 from formation_bench.optimizers.adapters import ADAPTERS
 
@@ -194,16 +194,21 @@ def test_a_problem_reads_only_the_scenario_fields_the_hash_covers():
     read: set[str] = set()
 
     class Recording:
-        def __init__(self, scenario: Scenario) -> None:
-            self._scenario = scenario
+        """Records the settings read, a group's by their own names."""
+
+        def __init__(self, target: object) -> None:
+            self._target = target
 
         def __getattr__(self, name):
+            value = getattr(self._target, name)
+            if name in GROUPS:
+                return Recording(value)
             read.add(name)
-            return getattr(self._scenario, name)
+            return value
 
     scenario = get_scenario("paper-obstacles", uav_accel_bounds=((-5, 5), (-6, 6), (-7, 7)))
     rng = np.random.default_rng(0)
-    horizon = scenario.horizon_steps
+    horizon = scenario.timing.horizon_steps
     problem = LocalProblem(
         Recording(scenario),
         1,
@@ -215,7 +220,7 @@ def test_a_problem_reads_only_the_scenario_fields_the_hash_covers():
     )
     x = problem.bounds.lower / 2
     problem(x[None]), problem.reference_cost(x), problem.plan(x, 0), problem.centre_group
-    fields = {f.name for f in dataclasses.fields(Scenario)}
+    fields = {f.name for f in Scenario.setting_fields()}
     derived = {"n_uav", "control_bounds_of", "control_lower", "control_upper"}
     assert read - derived <= set(SOLVE_FIELDS) and read & fields <= set(SOLVE_FIELDS)
 
@@ -237,7 +242,7 @@ def test_drawing_takes_distinct_problems_per_phase_seeded():
     assert len(set(hashes)) == len(hashes) == 13
     assert {i["uav"] for i in instances if i["step"] == 0} == {0, 1, 2}
     scenario = get_scenario("paper")
-    settle = scenario.settle_time_s / scenario.period_s
+    settle = scenario.evaluation.settle_time_s / scenario.timing.period_s
     for loop, start_ups in ((instances[:7], 2), (instances[7:], 1)):
         phases = [PHASES[i["phase_index"]] for i in loop]
         assert phases == ["start-up"] * start_ups + ["transient"] * 2 + ["steady"] * 3
@@ -276,7 +281,7 @@ def test_a_tiny_build_stores_and_loads_every_field(tmp_path, monkeypatch):
     neighbours = {"paper": 2, "swarm-5-complete": 4, "swarm-5-ring": 2}
     for instance in library:
         ring = instance.family == "swarm-5-ring"
-        assert instance.scenario.graph == ("ring" if ring else "complete")
+        assert instance.scenario.communication.graph == ("ring" if ring else "complete")
         assert (instance.centre_offset_sum is not None) == ring
         assert len(instance.neighbour_positions) == neighbours[instance.family]
         assert np.all(np.isfinite(instance.neighbour_positions))

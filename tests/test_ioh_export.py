@@ -17,6 +17,7 @@ from formation_bench.analysis.scoring import (
 from formation_bench.cli.main import main
 from formation_bench.experiments import score
 from formation_bench.instances.library import Library, load_shipped
+from formation_bench.optimizers import Budget
 
 ioh = pytest.importorskip("ioh")
 
@@ -43,7 +44,7 @@ def scored(tmp_path_factory):
     out = tmp_path_factory.mktemp("ioh")
     library = small_library()
     for name, seeds in RUNS:
-        for run in score.score_runs(name, {}, [(BUDGET, None)], seeds, library=library):
+        for run in score.score_runs(name, {}, [Budget(BUDGET)], seeds, library=library):
             score.write_score(out, run, score.execute_score(run, library))
     return out
 
@@ -79,13 +80,13 @@ def test_score_rows_keep_the_improvements_of_the_best_cost(scored):
             stored = row[score.target_column(target)]
             assert hit == stored or (np.isnan(hit) and np.isnan(stored))
     # and they are the points where the full history of the solve fell to a new low
-    (run,) = score.score_runs("pso", {}, [(BUDGET, None)], [1], library=library)
+    (run,) = score.score_runs("pso", {}, [Budget(BUDGET)], [1], library=library)
     instance = library[2]
     rng = np.random.default_rng(np.random.SeedSequence([run.entropy, instance.index]))
     optimizer = run.optimizer()
     problem = instance.problem
     result = optimizer.minimize(
-        problem, problem.bounds, rng, run.budget(optimizer), instance.warm_start
+        problem, problem.bounds, rng, run.budget_for(optimizer), instance.warm_start
     )
     stored = rows[(rows["run_key"] == run.key) & (rows["instance"] == 2)].iloc[0]
     new_low = np.r_[True, np.diff(result.history_fun) < 0]
@@ -97,7 +98,7 @@ def test_score_rows_keep_the_improvements_of_the_best_cost(scored):
 def test_runs_stored_in_an_older_format_are_redone(tmp_path, monkeypatch):
     library = small_library(2)
     monkeypatch.setattr(score, "load_shipped", lambda version: library)
-    (run,) = score.score_runs("random-search", {}, [(50, None)], [0], library=library)
+    (run,) = score.score_runs("random-search", {}, [Budget(50)], [0], library=library)
     path = score.write_score(tmp_path, run, score.execute_score(run, library))
     assert score.stored_keys(tmp_path) == {run.key}
     old = pd.read_parquet(path).drop(columns=["improvement_nfev", "improvement_fun", "x"])

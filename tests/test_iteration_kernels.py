@@ -12,35 +12,40 @@ import pytest
 
 from formation_bench.fields import kernel_field_names, kernel_value
 from formation_bench.optimizers import OPTIMIZERS, Bounds, Budget, get_optimizer
-from formation_bench.optimizers.cls_bso import LocalSearchConfig, LocalSettings, cls_iteration
+from formation_bench.optimizers.bso_ops import move_ideas
+from formation_bench.optimizers.cls_bso import (
+    LocalSearchConfig,
+    LocalSettings,
+    cls_ask,
+    local_candidates,
+)
 from formation_bench.optimizers.modified_bso_kernels import (
     KernelSettings,
     ModifiedBSOConfig,
-    ideas_from_clusters,
-    modified_bso_iteration,
+    modified_bso_ask,
 )
 from formation_bench.optimizers.original_bso_kernels import (
     PER_SOLVE,
     ShiConfig,
     ShiSettings,
-    shi_ideas,
+    shi_ask,
     shi_step,
 )
 from formation_bench.optimizers.population import ROWS_AHEAD, iteration_randoms, no_randoms
-from formation_bench.optimizers.pso_ops import PER_SOLVE as PSO_PER_SOLVE
-from formation_bench.optimizers.pso_ops import PSOConfig, PSOSettings, pso_block
+from formation_bench.optimizers.pso import PER_SOLVE as PSO_PER_SOLVE
+from formation_bench.optimizers.pso import PSOConfig, PSOSettings, move_swarm, pso_ask
 
 # (config, settings class, per-solve values, kernels reading it, the kernels' name for it)
 SETTINGS = [
+    (ModifiedBSOConfig, KernelSettings, PER_SOLVE, (modified_bso_ask, move_ideas), "s"),
     (
-        ModifiedBSOConfig,
-        KernelSettings,
+        ShiConfig,
+        ShiSettings,
         PER_SOLVE,
-        (modified_bso_iteration, ideas_from_clusters),
+        (shi_ask, shi_step, cls_ask, local_candidates, move_ideas),
         "s",
     ),
-    (ShiConfig, ShiSettings, PER_SOLVE, (shi_step, cls_iteration), "s"),
-    (LocalSearchConfig, LocalSettings, (), (cls_iteration,), "local"),
+    (LocalSearchConfig, LocalSettings, (), (cls_ask, local_candidates), "local"),
 ]
 IDS = [entry[1].__name__ for entry in SETTINGS]
 
@@ -112,29 +117,62 @@ def test_settings_reach_the_operators_by_name(config, settings, per_solve, kerne
     assert [(kw, field) for kw, field in by_keyword if kw != field] == []
 
 
+MAX_KERNEL_ARGUMENTS = 8
+
+
+def compiled_functions() -> list[tuple[str, object]]:
+    """Every compiled function (numba dispatcher) defined in the optimisers."""
+    import importlib
+    import pkgutil
+
+    import numba.core.registry
+
+    import formation_bench.optimizers
+
+    found = []
+    for package in (formation_bench.optimizers,):
+        for info in pkgutil.walk_packages(package.__path__, package.__name__ + "."):
+            module = importlib.import_module(info.name)
+            for name, value in vars(module).items():
+                if (
+                    isinstance(value, numba.core.registry.CPUDispatcher)
+                    and value.py_func.__module__ == module.__name__
+                ):
+                    found.append((f"{module.__name__}.{name}", value))
+    return found
+
+
+def test_no_kernel_takes_more_than_eight_positional_arguments() -> None:
+    """Settings travel as one tuple, state as one named tuple: no long lists to keep in order."""
+    functions = compiled_functions()
+    assert len(functions) > 30
+    too_long = {
+        name: len(inspect.signature(kernel.py_func).parameters)
+        for name, kernel in functions
+        if len(inspect.signature(kernel.py_func).parameters) > MAX_KERNEL_ARGUMENTS
+    }
+    assert too_long == {}
+
+
 def test_the_kernels_take_one_settings_tuple() -> None:
-    """No positional settings lists left to keep in order by hand."""
-    for kernel in (modified_bso_iteration, ideas_from_clusters, shi_ideas, shi_step):
-        names = tuple(inspect.signature(kernel.py_func).parameters)
-        assert names[-1] in ("packed", "s")
-        assert not set(names) & set(KernelSettings._fields + ShiSettings._fields)
-    assert tuple(inspect.signature(cls_iteration.py_func).parameters)[-2:] == (
-        "shi_packed",
-        "local_packed",
-    )
+    """No setting is a parameter of its own: each kernel reads them from one tuple."""
+    every_setting = set(KernelSettings._fields + ShiSettings._fields + LocalSettings._fields)
+    for kernel in (modified_bso_ask, shi_ask, cls_ask, shi_step, move_ideas, local_candidates):
+        names = set(inspect.signature(kernel.py_func).parameters)
+        assert not names & (every_setting - {"lower", "upper", "t_max", "scale"}), kernel
 
 
-def test_the_pso_block_reads_exactly_its_declared_settings() -> None:
+def test_the_pso_kernels_read_exactly_their_declared_settings() -> None:
     declared = set(kernel_field_names(PSOConfig)) | set(PSO_PER_SOLVE)
     assert declared == set(PSOSettings._fields)
-    assert attributes_read([pso_block], "s") == declared
+    assert attributes_read([pso_ask, move_swarm], "s") == declared
 
 
 @pytest.mark.parametrize("name", ["pso", "pso-constriction", "chaotic-pso"])
 def test_packed_pso_settings_hold_each_field_under_its_own_name(name: str) -> None:
     optimizer = get_optimizer(name)
     box = Bounds(np.full(3, -1.0), np.full(3, 2.0))
-    settings = PSOSettings(*optimizer.pso_settings(box, 17))
+    settings = PSOSettings(*optimizer.params(box, 17))
     for field in settings._fields:
         value = getattr(settings, field)
         if field == "t_max":
@@ -159,7 +197,7 @@ def test_packed_settings_hold_each_field_under_its_own_name(name: str) -> None:
     box = Bounds(np.full(3, -1.0), np.full(3, 2.0))
     packs = []
     if isinstance(optimizer, ModifiedBSOConfig):
-        packs.append((KernelSettings, optimizer.kernel_settings(box, 17)))
+        packs.append((KernelSettings, optimizer.params(box, 17)))
     if isinstance(optimizer, ShiConfig):
         packs.append((ShiSettings, optimizer.shi_settings(box, 17)))
     if isinstance(optimizer, LocalSearchConfig):

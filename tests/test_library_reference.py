@@ -71,12 +71,14 @@ def agree(ours: np.ndarray, reference: np.ndarray) -> None:
 
 
 @pytest.mark.parametrize("name", list(SCIPY_STRATEGY))
+@pytest.mark.slow
 def test_de_and_scipy_reach_the_same_gaps_on_the_library(name: str) -> None:
     ours = our_gaps(name)
     assert get_optimizer(name).default_budget.max_iterations == 40
     agree(ours, scipy_gaps(SCIPY_STRATEGY[name]))
 
 
+@pytest.mark.slow
 def test_the_check_tells_a_weaker_search_apart() -> None:
     """The test has power: de at its default against scipy's DE with ten times the
     generations is rejected (on every 4th problem: the stronger search is ten times as long)."""

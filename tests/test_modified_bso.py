@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections import namedtuple
 
+import numba as nb
 import numpy as np
 import pytest
+from helpers import BOX, D, Recorder, sphere
 
 from formation_bench.optimizers import (
     OPTIMIZERS,
@@ -22,9 +25,9 @@ from formation_bench.optimizers import bso_ops as ops
 from formation_bench.optimizers.bso_ops import BoundHandling
 from formation_bench.optimizers.chaos import ChaoticMap, chaotic_sequence
 from formation_bench.optimizers.clustering import ClusteringBackend
+from formation_bench.optimizers.compiled import COST_SIGNATURE, CompiledObjective
+from formation_bench.optimizers.population import initial_population
 
-D = 10
-BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
 RASTRIGIN_BOX = Bounds(np.full(D, -5.12), np.full(D, 5.12))
 SHIFT = np.linspace(-2.0, 2.0, D)
 VARIANTS = [
@@ -36,8 +39,6 @@ VARIANTS = [
 ]
 
 
-def sphere(x: np.ndarray) -> np.ndarray:
-    return np.einsum("ij,ij->i", x, x)
 
 
 def shifted_rastrigin(x: np.ndarray) -> np.ndarray:
@@ -45,20 +46,28 @@ def shifted_rastrigin(x: np.ndarray) -> np.ndarray:
     return 10.0 * z.shape[1] + (z * z - 10.0 * np.cos(2.0 * np.pi * z)).sum(axis=1)
 
 
-class Recorder:
-    """Batch objective that keeps every row it is asked to evaluate."""
+@nb.cfunc(COST_SIGNATURE, cache=True)
+def compiled_shifted_sphere(x_ptr, n, d, data_ptr, out_ptr):  # type: ignore[no-untyped-def]
+    x = nb.carray(x_ptr, (n, d))
+    shift = nb.carray(data_ptr, (d,))
+    out = nb.carray(out_ptr, (n,))
+    for i in range(n):
+        out[i] = 0.0
+        for c in range(d):
+            out[i] += (x[i, c] - shift[c]) ** 2
 
-    def __init__(self, f=sphere) -> None:
-        self.f = f
-        self.batches: list[np.ndarray] = []
+
+class CompiledSphere:
+    """The shifted sphere with a compiled handle (its Python call gives the same costs)."""
+
+    def __init__(self, shift: np.ndarray) -> None:
+        data = np.ascontiguousarray(shift, dtype=np.float64)
+        self.compiled = CompiledObjective(
+            compiled_shifted_sphere.address, data, compiled_shifted_sphere
+        )
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        self.batches.append(x.copy())
-        return self.f(x)
-
-    @property
-    def points(self) -> np.ndarray:
-        return np.vstack(self.batches)
+        return self.compiled(x)
 
 
 def random_search(f, bounds: Bounds, evaluations: int, seed: int) -> float:
@@ -157,25 +166,61 @@ def test_info_reports_objective_time_and_replacements() -> None:
     assert type(res.info["chaotic_replacements"]) is int
 
 
+def iterations_by_hand(optimizer, objective, iterations: int, seed: int, max_evaluations=None):
+    """Drive ``optimizer``'s ask/tell kernels from the test, one iteration at a time: yields
+    ``(state, counter, rounds)`` after each, ``rounds`` the ``(candidates, last)`` asked."""
+    counter = EvaluationCounter(objective, D, max_evaluations)
+    rng = np.random.default_rng(seed)
+    points, costs = initial_population(
+        counter, BOX, rng, optimizer.population(), None, optimizer.initialisation()
+    )
+    params = optimizer.params(BOX, iterations)
+    state = optimizer.start(points, costs, rng, params)
+    plan = optimizer.draw_plan(*points.shape)
+    ask, tell = optimizer.kernels.ask, optimizer.kernels.tell
+    for iteration in range(1, iterations + 1):
+        uniforms, normals = rng.random(plan.uniforms), rng.standard_normal(plan.normal_shape)
+        rounds, last = [], False
+        while not last:
+            state, candidates, last = ask(
+                state, params, uniforms, normals, iteration, counter.remaining
+            )
+            rounds.append((candidates, last))
+            allowed = min(candidates.shape[0], counter.remaining)
+            state = tell(state, params, candidates, counter(candidates[:allowed]), iteration)
+        yield state, counter, rounds
+
+
 @pytest.mark.parametrize("name", VARIANTS)
-def test_the_pending_selection_keeps_costs_and_improves_slots(name: str) -> None:
-    """The state defers each iteration's selection into the next kernel call; applied by hand,
-    every member's cost is its own, and a slot only gets worse by a chaotic replacement."""
+def test_after_each_iteration_costs_are_the_members_own_and_slots_improve(name: str) -> None:
+    """Every member's cost is its own, and a slot only gets worse by a chaotic replacement."""
     optimizer = get_optimizer(name)
-    counter = EvaluationCounter(sphere, D, None)
-    rng = np.random.default_rng(4)
-    state = optimizer.init(counter, BOX, rng, None, 10)
-    previous = state.f.copy()
-    for iteration in range(1, 11):
-        replacements = state.replacements
-        state = optimizer.step(state, counter, BOX, rng, iteration)
-        x, f = state.population()
-        np.testing.assert_array_equal(sphere(x), f)
-        assert np.sum(f > previous) <= state.replacements - replacements
-        previous = f
+    runs = list(iterations_by_hand(optimizer, sphere, 10, seed=4))
+    previous = None
+    for state, _, _ in runs:
+        np.testing.assert_array_equal(sphere(state.x), state.f)
+        if previous is not None:
+            assert np.sum(state.f > previous[0]) <= state.replacements - previous[1]
+        previous = state.f.copy(), state.replacements
+    state, counter, _ = runs[-1]
     if not optimizer.chaos_replacement:  # then the population keeps the best point found
-        assert f.min() == counter.best_f
-        np.testing.assert_array_equal(x[np.argmin(f)], counter.best_x)
+        assert state.f.min() == counter.best_f
+        np.testing.assert_array_equal(state.x[np.argmin(state.f)], counter.best_x)
+
+
+def test_a_replacement_is_a_first_round_of_n_r_candidates() -> None:
+    """With p_r = 1 every iteration asks for the n_r chaotic candidates (not last), then for
+    the N ideas; with fewer than n_r evaluations left it asks for the ideas at once."""
+    optimizer = ModifiedBSO(p_replace=1.0, n_replace=7, population_size=12, n_clusters=3)
+    shapes = [
+        [(c.shape, last) for c, last in rounds]
+        for _, _, rounds in iterations_by_hand(optimizer, sphere, 3, seed=1)
+    ]
+    assert shapes == [[((7, D), False), ((12, D), True)]] * 3
+    # 12 initial, then 7 + 12 = 31, then 5 left: fewer than n_r, the ideas come first
+    runs = list(iterations_by_hand(optimizer, sphere, 2, seed=1, max_evaluations=36))
+    assert [len(rounds) for _, _, rounds in runs] == [2, 1]
+    assert runs[-1][0].replacements == 1 and runs[-1][1].nfev == 36
 
 
 def test_nan_and_inf_costs_rank_below_finite_ones() -> None:
@@ -242,6 +287,18 @@ def test_sklearn_backend_gives_the_same_run() -> None:
     compiled = solve(ModifiedBSO(max_iterations=6), seed=2)
     reference = solve(ModifiedBSO(max_iterations=6, clustering=ClusteringBackend.SKLEARN), seed=2)
     assert same_result(compiled, reference)
+
+
+def test_sklearn_backend_solves_a_compiled_objective_through_python() -> None:
+    """Its k-means runs in Python, so it takes the objective's Python call; same run."""
+    objective = CompiledSphere(SHIFT)
+    sklearn = ModifiedBSO(max_iterations=6, clustering=ClusteringBackend.SKLEARN)
+    assert not sklearn.has_compiled_loop() and ModifiedBSO().has_compiled_loop()
+    reference = solve(sklearn, objective, seed=3)
+    compiled = solve(ModifiedBSO(max_iterations=6), objective, seed=3)
+    assert same_result(compiled, reference)
+    assert math.isnan(compiled.info["objective_time_s"])
+    assert reference.info["objective_time_s"] > 0.0
 
 
 # --- configuration and registry ----------------------------------------------------------------
@@ -396,7 +453,8 @@ def shi_case() -> tuple[np.ndarray, ...]:
 )
 def test_shi_selection_branches(u: list[float], expected: float) -> None:
     population, labels, centre, sizes = shi_case()
-    out = ops.shi_select(population, labels, centre, sizes, np.array([u]), 0.8, 0.4, 0.5)
+    clusters = ops.Clusters(labels, centre, sizes)
+    out = ops.shi_select(population, clusters, np.array([u]), 0.8, 0.4, 0.5)
     assert out[0, 0] == pytest.approx(expected)
 
 
@@ -405,7 +463,7 @@ def test_shi_selection_with_one_nonempty_cluster_uses_one_cluster() -> None:
     labels = np.zeros(4, dtype=np.int64)
     centre, sizes = ops.cluster_centres(labels, np.array([2.0, 1.0, 3.0, 4.0]), 2)
     u = np.array([[0.99, 0.5, 0.1, 0.0, 0.5, 0.5, 0.5], [0.99, 0.5, 0.9, 0.8, 0.5, 0.5, 0.5]])
-    out = ops.shi_select(population, labels, centre, sizes, u, 0.0, 0.4, 0.5)
+    out = ops.shi_select(population, ops.Clusters(labels, centre, sizes), u, 0.0, 0.4, 0.5)
     np.testing.assert_array_equal(out[:, 0], [1.0, 3.0])
 
 
@@ -480,23 +538,37 @@ def test_greedy_keeps_the_strictly_better() -> None:
     assert n_nan == 0 and np.array_equal(f_nan, old_f)
 
 
-def test_generate_ideas_composes_the_rules() -> None:
-    rng = np.random.default_rng(9)
-    x, f = rng.random((12, 3)), rng.random(12)
-    labels, centre, sizes = ops.cluster_population(x, f, rng.random(3), 100)
-    lower, upper, scale = np.zeros(3), np.ones(3), np.full(3, 0.1)
-    rand, normals = rng.random(12), rng.standard_normal((12, 3))
-    for all_centre, width in ((True, 3), (False, ops.SHI_UNIFORMS_PER_IDEA)):
-        seeds = rng.random((12, width))
-        ideas = ops.generate_ideas(
-            x, labels, centre, sizes, seeds, all_centre, 0, 5, True,
-            0.8, 0.4, 0.5, 0.6, rand, normals, scale, lower, upper, 1, normals,
-        )  # fmt: skip
-        if all_centre:
-            aux = ops.all_centre_auxiliary(x, centre, seeds, 0, 5, True)
+def test_bso_draws_lay_out_one_row_of_uniforms() -> None:
+    n, d, m, width = 4, 3, 2, 5
+    for resample in (False, True):
+        size = ops.uniforms_per_iteration(n, d, m, width, resample)
+        u, normals = np.arange(size, dtype=np.float64), np.full((n, d), -1.0)
+        draws = ops.bso_draws(u, normals, m, width)
+        parts = [draws.kmeans, [draws.replace_draw], [draws.centre_draw], draws.point,
+                 draws.sources.ravel(), draws.rand]  # fmt: skip
+        if resample:
+            parts.append(draws.resample.ravel())
         else:
-            aux = ops.shi_select(x, labels, centre, sizes, seeds, 0.8, 0.4, 0.5)
-        expected = ops.apply_bounds(
-            ops.perturb(aux, 0.6, rand, normals, scale), lower, upper, 1, normals
-        )
-        np.testing.assert_array_equal(ideas, expected)
+            assert draws.resample is draws.normals or np.all(draws.resample == -1.0)
+        np.testing.assert_array_equal(np.concatenate(parts), u)
+        assert draws.sources.shape == (n, width) and draws.resample.shape == (n, d)
+
+
+def test_move_ideas_is_equation_10_then_the_bounds() -> None:
+    rng = np.random.default_rng(9)
+    n, d = 12, 3
+    # any namedtuple with these fields will do
+    settings = namedtuple("Settings", "scale lower upper bound_handling")(
+        np.full(d, 0.1), np.zeros(d), np.ones(d), int(BoundHandling.REFLECT)
+    )
+    u = rng.random(ops.uniforms_per_iteration(n, d, 3, 3, False))
+    normals = rng.standard_normal((n, d)) * 20.0
+    draws = ops.bso_draws(u, normals, 3, 3)
+    aux = rng.random((n, d))
+    ideas = ops.move_ideas(aux.copy(), 0.6, draws, settings)
+    expected = ops.apply_bounds(
+        ops.perturb(aux, 0.6, draws.rand, normals, settings.scale), settings.lower,
+        settings.upper, int(BoundHandling.REFLECT), normals,
+    )  # fmt: skip
+    np.testing.assert_array_equal(ideas, expected)
+    assert np.any(ops.perturb(aux, 0.6, draws.rand, normals, settings.scale) > 1.0)

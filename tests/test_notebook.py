@@ -19,6 +19,8 @@ from nbclient import NotebookClient
 from formation_bench.analysis import notebook as analysis
 from formation_bench.experiments.suite import load_suite
 from formation_bench.experiments.sweep import run_sweep
+from formation_bench.mpc.scenario import get_scenario
+from formation_bench.pipeline.spec import canonical_json, config_of
 
 ROOT = Path(__file__).parents[1]
 SUITES = ("paper", "ablation", "comparison", "trigger", "swarm", "robustness", "obstacles")
@@ -45,6 +47,7 @@ def test_notebook_twin_is_in_sync():
     )
 
 
+@pytest.mark.slow
 def test_notebook_executes_on_stored_results(results_dir, tmp_path, monkeypatch):
     monkeypatch.setenv("FORMATION_BENCH_RESULTS", str(results_dir))
     monkeypatch.setenv("FORMATION_BENCH_CONVERGENCE_SEEDS", "2")
@@ -119,12 +122,12 @@ def test_analysis_helpers_on_the_stored_results(results_dir):
 
 def test_trigger_tradeoff_counts_each_runs_own_uavs():
     def run(trigger: bool, n_uav: int, solves_total: int, eps: float | None) -> dict:
-        overrides = "{}" if eps is None else f'{{"eps_p": {eps}}}'
+        scenario = get_scenario("paper") if eps is None else get_scenario("paper", eps_p=eps)
         return {
             "trigger": trigger,
             "steps": 100,
             "solves_total": solves_total,
-            "scenario_overrides": overrides,
+            "scenario_config": canonical_json(config_of(scenario)),
             **{f"solves_uav{k}": solves_total / n_uav for k in range(1, n_uav + 1)},
         }
 

@@ -6,13 +6,14 @@ import math
 
 import numpy as np
 import pytest
+from helpers import BOX, D, sphere
+from test_modified_bso import iterations_by_hand
 
 from formation_bench.optimizers import (
     OPTIMIZERS,
     Bounds,
     Budget,
     ChaoticLocalSearchBSO,
-    EvaluationCounter,
     ModifiedBSO,
     OptimizeResult,
     OriginalBSO,
@@ -21,13 +22,6 @@ from formation_bench.optimizers import (
 from formation_bench.optimizers.chaos import ChaoticMap
 from formation_bench.optimizers.cls_bso import local_radius
 from formation_bench.optimizers.original_bso_kernels import replace_centre
-
-D = 10
-BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
-
-
-def sphere(x: np.ndarray) -> np.ndarray:
-    return np.einsum("ij,ij->i", x, x)
 
 
 def shifted_rastrigin(x: np.ndarray) -> np.ndarray:
@@ -185,19 +179,47 @@ def test_modified_bso_with_every_other_map_is_registered() -> None:
 
 
 @pytest.mark.parametrize("name", ["original-bso", "original-bso-range-step", "cls-bso"])
-def test_the_pending_selection_keeps_the_best_point(name: str) -> None:
-    """Each iteration's selection is deferred into the next kernel call; applied by hand, every
-    member's cost is its own, no slot gets worse, and the best member is the best point found."""
+def test_after_each_iteration_the_population_keeps_the_best_point(name: str) -> None:
+    """Every member's cost is its own, no slot gets worse, and the best member is the best
+    point found."""
     optimizer = get_optimizer(name)
-    counter = EvaluationCounter(shifted_rastrigin, D, None)
-    rng = np.random.default_rng(2)
-    state = optimizer.init(counter, BOX, rng, None, 12)
-    previous = state.population()[1]
-    for iteration in range(1, 13):
-        state = optimizer.step(state, counter, BOX, rng, iteration)
-        x, f = state.population()
-        np.testing.assert_array_equal(shifted_rastrigin(x), f)
-        assert np.all(f <= previous)
-        previous = f
-    assert f.min() == counter.best_f
-    np.testing.assert_array_equal(x[np.argmin(f)], counter.best_x)
+    runs = list(iterations_by_hand(optimizer, shifted_rastrigin, 12, seed=2))
+    previous = None
+    for state, _, rounds in runs:
+        assert [last for _, last in rounds] == [True]
+        np.testing.assert_array_equal(shifted_rastrigin(state.x), state.f)
+        assert previous is None or np.all(state.f <= previous)
+        previous = state.f
+    state, counter, _ = runs[-1]
+    assert state.f.min() == counter.best_f
+    np.testing.assert_array_equal(state.x[np.argmin(state.f)], counter.best_x)
+
+
+def test_cls_bso_asks_for_the_ideas_then_the_local_points_around_the_best() -> None:
+    optimizer = ChaoticLocalSearchBSO(n_local=4, local_radius_start=0.01, local_radius_end=0.01)
+    radius = 0.01 * BOX.width
+    best = None
+    for state, _, rounds in iterations_by_hand(optimizer, sphere, 3, seed=5):
+        ((candidates, _),) = rounds
+        assert candidates.shape == (25 + 4, D)
+        if best is not None:  # the local points lie around the best member asked from
+            assert np.all(np.abs(candidates[25:] - best) <= radius)
+            assert np.all(np.abs(candidates[25:] - best) > 0.0)
+        best = state.x[np.argmin(state.f)]
+
+
+def test_cls_bso_with_resample_bound_handling_stays_in_the_box() -> None:
+    from formation_bench.optimizers.bound_handling import BoundHandling
+
+    optimizer = ChaoticLocalSearchBSO(bound_handling=BoundHandling.RESAMPLE, local_radius_start=1.0)
+    assert optimizer.has_compiled_loop()
+    recorder = []
+
+    def recording(x: np.ndarray) -> np.ndarray:
+        recorder.append(x.copy())
+        return sphere(x - 4.9)
+
+    res = run(optimizer, recording, seed=4, budget=Budget(max_iterations=8))
+    points = np.vstack(recorder)
+    assert np.all(points >= BOX.lower) and np.all(points <= BOX.upper)
+    assert res.nfev == 25 + 8 * 30

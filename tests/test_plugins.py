@@ -112,6 +112,7 @@ def make_distribution(root: Path, module: str, optimizer: str, scenario: str) ->
     return root
 
 
+@pytest.mark.slow
 def test_entry_point_plugin_completes_a_two_worker_sweep(tmp_path):
     site = make_distribution(tmp_path / "site", "fb_entry_plugin", "ep-search", "ep-scenario")
     listing = cli("list", env_path=site)
@@ -128,6 +129,7 @@ def test_entry_point_plugin_completes_a_two_worker_sweep(tmp_path):
     assert (results["solves_total"] > 0).all()
 
 
+@pytest.mark.slow
 def test_plugin_file_completes_a_two_worker_sweep_and_a_run(tmp_path):
     plugin = tmp_path / "my_plugin.py"
     plugin.write_text(
@@ -174,6 +176,7 @@ def plugin_file(tmp_path):
         sys.modules.pop(module.__name__, None)
 
 
+@pytest.mark.slow
 def test_plugin_file_on_the_dask_path(tmp_path, plugin_file):
     distributed = pytest.importorskip("dask.distributed")
     from formation_bench.cli.main import main

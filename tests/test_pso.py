@@ -6,25 +6,27 @@ import math
 
 import numpy as np
 import pytest
+from helpers import BOX, sphere
 
 from formation_bench.optimizers import PSO, Bounds, Budget, get_optimizer
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.chaos import ChaoticMap, chaotic_sequence
 from formation_bench.optimizers.population import progress
-from formation_bench.optimizers.pso_ops import chaotic_inertia, linear_inertia, move_swarm
-
-D = 10
-BOX = Bounds(np.full(D, -5.0), np.full(D, 5.0))
-
-
-def sphere(x: np.ndarray) -> np.ndarray:
-    return np.einsum("ij,ij->i", x, x)
+from formation_bench.optimizers.pso import (
+    PSOSettings,
+    PSOState,
+    chaotic_inertia,
+    linear_inertia,
+    move_swarm,
+)
 
 
 def move(x, v, p, g, w, r1, r2, v_max, lower, upper, mode=BoundHandling.CLIP, u=None):
-    out = move_swarm(
-        x, v, p, g, w, 2.0, 1.5, r1, r2, v_max, lower, upper, int(mode), x if u is None else u
-    )
+    box = Bounds(np.array(lower, dtype=float), np.array(upper, dtype=float))
+    settings = PSOSettings(*PSO(c1=2.0, c2=1.5, bound_handling=mode).params(box, 10))
+    settings = settings._replace(v_max=np.asarray(v_max, dtype=float))
+    state = PSOState(x, v, p, np.zeros(x.shape[0]), np.zeros((0, *x.shape)), 0.5)
+    out = move_swarm(state, g, w, r1, r2, x if u is None else u, settings)
     n = x.shape[0]
     return out[:n], out[n:]
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import Recorder
 from scipy.stats import kstest, mannwhitneyu
 
 from formation_bench.optimizers import Bounds, Budget, RandomSearch, get_optimizer
@@ -12,13 +13,6 @@ D = 4
 BOX = Bounds(np.array([-1.0, 0.0, 2.0, -0.25]), np.array([1.0, 5.0, 3.0, 0.25]))
 
 
-class Recorder:
-    def __init__(self) -> None:
-        self.batches: list[np.ndarray] = []
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        self.batches.append(np.array(x, copy=True))
-        return np.einsum("ij,ij->i", x, x)
 
 
 def test_batches_are_uniform_in_the_box_with_the_warm_start_first() -> None:

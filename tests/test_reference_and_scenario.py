@@ -1,12 +1,29 @@
-"""Reference paths in closed form, and scenario validation."""
+"""Reference paths in closed form, scenario validation, and the scenario's setting groups."""
 
+import ast
+import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from formation_bench.fields import declared
+from formation_bench.mpc import scenario as scenario_module
 from formation_bench.mpc.reference import REFERENCE_PATHS, ReferencePath
-from formation_bench.mpc.scenario import PAPER, SCENARIOS, FormationFrame, Scenario, get_scenario
+from formation_bench.mpc.scenario import (
+    GROUP_OF,
+    GROUPS,
+    PAPER,
+    SCENARIOS,
+    CommunicationGraph,
+    EstimateExtension,
+    FormationFrame,
+    Scenario,
+    TimingSettings,
+    TriggerSettings,
+    get_scenario,
+)
 
 
 def test_straight_reference():
@@ -39,14 +56,15 @@ def test_reference_speed_is_constant(name):
 
 
 def test_paper_scenario_matches_section_3():
-    assert PAPER.n_uav == 3 and PAPER.n_steps == 240
+    assert PAPER.n_uav == 3 and PAPER.timing.n_steps == 240
     assert PAPER.horizon_s == pytest.approx(4.0)
     d = PAPER.desired_distances()
     assert d[0, 2] == pytest.approx(20.0)
     assert d[0, 1] == pytest.approx(math.sqrt(200.0))
     assert d[1, 2] == pytest.approx(math.sqrt(200.0))
     np.testing.assert_allclose(PAPER.initial_states[0][2], math.radians(68.02))
-    assert PAPER.accel_bounds == (-7.0, 7.0) and PAPER.turn_rate_bounds == (-0.25, 0.25)
+    assert PAPER.limits.accel_bounds == (-7.0, 7.0)
+    assert PAPER.limits.turn_rate_bounds == (-0.25, 0.25)
 
 
 def test_path_frame_offsets_rotate_with_heading():
@@ -89,6 +107,86 @@ def test_unknown_scenario_field_and_name():
 
 
 def test_enum_fields_accept_strings():
-    scenario = Scenario(estimate_extension="hold", formation_frame="world")
+    scenario = Scenario(communication={"estimate_extension": "hold"}, formation_frame="world")
     assert scenario.formation_frame is FormationFrame.WORLD
+    assert scenario.communication.estimate_extension is EstimateExtension.HOLD
     assert set(SCENARIOS) >= {"paper", "paper-straight", "paper-s-curve"}
+
+
+# --- the setting groups ------------------------------------------------------------------------
+
+
+def test_every_setting_is_declared_once_in_one_group_or_at_the_top():
+    flat = Scenario.setting_fields()
+    names = [f.name for f in flat]
+    assert len(names) == len(set(names)) == 45
+    assert all(declared(f) is not None and declared(f).doc for f in flat)
+    grouped = [f.name for group in GROUPS.values() for f in dataclasses.fields(group)]
+    assert sorted(grouped) == sorted(GROUP_OF)
+    top = {"name", "initial_states", "formation_offsets", "formation_frame", "reference",
+           "reference_start"}  # fmt: skip
+    assert set(names) == set(grouped) | top
+    values = PAPER.setting_values()
+    assert list(values) == names
+    assert values["eta"] == PAPER.trigger.eta and values["n_steps"] == PAPER.timing.n_steps
+
+
+def test_overrides_by_name_by_group_and_name_and_by_group():
+    flat = PAPER.with_overrides(n_steps=3, eta=0.5, graph="ring")
+    dotted = PAPER.with_overrides(**{"timing.n_steps": 3, "trigger.eta": 0.5,
+                                     "communication.graph": "ring"})  # fmt: skip
+    tables = PAPER.with_overrides(timing={"n_steps": 3}, trigger={"eta": 0.5},
+                                  communication={"graph": "ring"})  # fmt: skip
+    assert flat == dotted == tables
+    assert flat.timing.n_steps == 3 and flat.trigger.eta == 0.5
+    assert flat.communication.graph is CommunicationGraph.RING
+    assert flat.timing.horizon_steps == PAPER.timing.horizon_steps  # the rest of the group kept
+    whole = PAPER.with_overrides(trigger=TriggerSettings(eps_p=1.0), eta=0.25)
+    assert (whole.trigger.eps_p, whole.trigger.eta) == (1.0, 0.25)
+    assert get_scenario("paper", **{"trigger.eta": 0.5}) == PAPER.with_overrides(eta=0.5)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "needle"),
+    [
+        ({"colour": 1}, "unknown scenario field(s) colour; fields: accel_bounds"),
+        ({"trigger.n_steps": 3}, "unknown scenario field(s) trigger.n_steps"),
+        ({"timing.name": "x"}, "unknown scenario field(s) timing.name"),
+        ({"trigger": {"n_steps": 3}}, "unknown field(s) n_steps of scenario group trigger"),
+        ({"trigger": 3}, "Scenario.trigger must be a TriggerSettings or a table of its fields"),
+        ({"trigger.eta": 2.0}, "Scenario.eta must be a finite number in (0.0, 1.0]"),
+    ],
+)
+def test_bad_overrides_name_the_field(overrides, needle):
+    with pytest.raises(ValueError) as info:
+        PAPER.with_overrides(**overrides)
+    assert needle in str(info.value)
+
+
+def test_a_group_checks_its_own_fields_and_the_scenario_those_across_groups():
+    with pytest.raises(ValueError, match=r"Scenario.n_blocks must be an integer in \[1, 4\]"):
+        TimingSettings(horizon_steps=4, n_blocks=5)
+    # the lookahead's upper end is the horizon of another group: open in the group alone
+    assert TriggerSettings(trigger_lookahead_steps=50).trigger_lookahead_steps == 50
+    with pytest.raises(ValueError, match=r"lookahead_steps must be an integer in \[0, 20\]"):
+        Scenario(trigger=TriggerSettings(trigger_lookahead_steps=50))
+    longer = PAPER.with_overrides(horizon_steps=60, trigger_lookahead_steps=50)
+    assert longer.trigger_lookahead == 50
+    with pytest.raises(ValueError, match="delay_steps must be below n_steps - 1"):
+        PAPER.with_overrides(n_steps=3, delay_steps=2)
+
+
+def test_the_scenario_module_and_the_formation_library_import_one_way():
+    formations = Path(scenario_module.__file__).with_name("formations.py")
+    imported = {
+        node.module
+        for node in ast.walk(ast.parse(formations.read_text()))
+        if isinstance(node, ast.ImportFrom)
+    } | {
+        alias.name
+        for node in ast.walk(ast.parse(formations.read_text()))
+        if isinstance(node, ast.Import)
+        for alias in node.names
+    }
+    assert not any(name and name.startswith("formation_bench.mpc.scenario") for name in imported)
+    assert "swarm-10" in SCENARIOS and SCENARIOS["swarm-10"].n_uav == 10

@@ -1,11 +1,20 @@
 """``formation-bench report`` end to end on a small sweep."""
 
+import matplotlib.pyplot as plt
+import numpy as np
 import pandas as pd
 import pytest
 
 from formation_bench.cli.main import main
 from formation_bench.experiments.suite import parse_suite
 from formation_bench.experiments.sweep import run_sweep
+from formation_bench.mpc.metrics import (
+    Better,
+    Per,
+    column_label,
+    headline_metrics,
+    metric_infos,
+)
 
 SUITE = """\
 name = "small"
@@ -40,6 +49,7 @@ def results(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_report_prints_and_writes_tables_and_figures(results, capsys):
     assert main(["report", str(results), "--baseline", "no-modifications"]) == 0
     printed = capsys.readouterr().out
@@ -80,6 +90,53 @@ def test_report_prints_and_writes_tables_and_figures(results, capsys):
         "trigger_counts.png",
     ):
         assert (figures / name).stat().st_size > 10_000
+    drawn = {p.stem.removeprefix("distribution_") for p in figures.glob("distribution_*.png")}
+    assert drawn == set(headline_metrics())
+    # the terminal shows the headline metrics of each block, in their declared places
+    first_block = printed.split("## trigger on", 1)[1].split("\n## ", 1)[0]
+    shown = [line.strip("*") for line in first_block.splitlines() if line.startswith("**")]
+    assert shown == list(headline_metrics())
+
+
+def test_the_metrics_declare_how_they_are_shown():
+    infos = list(metric_infos())
+    places = sorted(info.headline for info in infos if info.headline is not None)
+    assert places == list(range(1, len(places) + 1))
+    for info in infos:
+        # a label or a headline place names one column: the metric's own
+        if info.label is not None or info.headline is not None:
+            assert info.per is Per.RUN, info.name
+        assert info.label is None or info.label.strip() == info.label != ""
+    assert column_label("distance_error_max_m_d12") == "distance_error_max_m_d12 (m)"
+    assert column_label("not_a_metric") == "not_a_metric"
+    assert any(info.better is Better.HIGHER for info in infos)  # the smallest separation
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # seaborn on newer Matplotlib
+def test_a_distribution_is_drawn_on_a_log_axis_only_when_declared_and_spread():
+    from formation_bench.analysis.figures import distribution_figure
+
+    rng = np.random.default_rng(3)
+    logged = next(info.name for info in metric_infos() if info.log_scale)
+    linear = next(
+        info.name for info in metric_infos() if not info.log_scale and info.per is Per.RUN
+    )
+    frame = pd.DataFrame(
+        {
+            "optimizer": np.repeat(["a", "b"], 6),
+            logged: 10 ** rng.uniform(0, 3, 12),
+            linear: 10 ** rng.uniform(0, 3, 12),
+        }
+    )
+    for metric, scale in ((logged, "log"), (linear, "linear")):
+        fig = distribution_figure(frame, metric)
+        assert fig.axes[0].get_yscale() == scale
+        assert fig.axes[0].get_ylabel() == column_label(metric)
+        plt.close(fig)
+    narrow = frame.assign(**{logged: rng.uniform(1, 2, 12)})
+    fig = distribution_figure(narrow, logged)
+    assert fig.axes[0].get_yscale() == "linear"
+    plt.close(fig)
 
 
 def test_report_compares_triggers_and_refuses_an_unknown_baseline(results, tmp_path, capsys):

@@ -3,12 +3,14 @@
 import json
 
 import pandas as pd
+import pytest
 
 from formation_bench.analysis.paper import PAPER_FIGURES, comparison_rows, format_table
 from formation_bench.analysis.paper_budget import shipped_line
 from formation_bench.cli.main import main
 
 
+@pytest.mark.slow
 def test_reproduce_writes_both_runs_and_the_table(tmp_path, capsys):
     out = tmp_path / "reproduce"
     assert main(["reproduce", "--out", str(out), "--seed", "4"]) == 0

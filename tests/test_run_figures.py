@@ -84,12 +84,14 @@ def test_trajectory_draws_every_uav_its_start_and_the_obstacles(outcomes, label)
     assert len({line.get_color() for line in paths}) == n_uav
     obstacles = _with_gid(ax.patches, "obstacle")
     margins = _with_gid(ax.patches, "obstacle-margin")
-    assert len(obstacles) == len(margins) == len(scenario.obstacles)
-    for circle, margin, (x, y, r) in zip(obstacles, margins, scenario.obstacles, strict=True):
+    assert len(obstacles) == len(margins) == len(scenario.safety.obstacles)
+    for circle, margin, (x, y, r) in zip(
+        obstacles, margins, scenario.safety.obstacles, strict=True
+    ):
         assert isinstance(circle, Circle) and circle.get_fill()
         assert circle.center == (x, y) and circle.radius == r
         assert not margin.get_fill() and margin.get_linestyle() == "--"
-        assert margin.radius == pytest.approx(r + scenario.obstacle_margin_m)
+        assert margin.radius == pytest.approx(r + scenario.safety.obstacle_margin_m)
     snapshots = _snapshots(outcome, 2.0)
     formations = _with_gid(ax.collections, "formation")
     polygons = [p for p in ax.patches if isinstance(p, Polygon)]
@@ -106,7 +108,7 @@ def test_trajectory_draws_every_uav_its_start_and_the_obstacles(outcomes, label)
     else:
         assert not named and len(fig.axes) == 2  # the colour bar instead
         assert fig.axes[1].get_ylabel() == "UAV"
-    assert ("obstacle" in legend) == bool(scenario.obstacles)
+    assert ("obstacle" in legend) == bool(scenario.safety.obstacles)
 
 
 def test_formation_edges_join_neighbouring_slots_whatever_the_heading():
@@ -131,7 +133,7 @@ def test_states_of_a_small_run_draw_every_named_pair(outcomes, label):
     scenario = outcome.trace.scenario
     desired = scenario.desired_distances()
     by_name = {name: float(desired[i, j]) for name, i, j in metrics.pair_names(scenario.n_uav)}
-    fig = figures.states_figure(outcome.frame, by_name, scenario.settle_time_s, scenario)
+    fig = figures.states_figure(outcome.frame, by_name, scenario.evaluation.settle_time_s, scenario)
     assert len(_with_gid(fig.axes[0].lines, "uav-state")) == scenario.n_uav
     distance_panel = fig.axes[4]
     labels = [t.get_text() for t in distance_panel.get_legend().get_texts()]
@@ -142,7 +144,7 @@ def test_states_of_a_small_run_draw_every_named_pair(outcomes, label):
 def test_states_of_a_swarm_draw_the_graph_distance_errors_the_metrics_measure(outcomes, label):
     outcome = outcomes[label]
     trace, scenario = outcome.trace, outcome.trace.scenario
-    fig = figures.states_figure(outcome.frame, {}, scenario.settle_time_s, scenario)
+    fig = figures.states_figure(outcome.frame, {}, scenario.evaluation.settle_time_s, scenario)
     for ax in fig.axes[:4]:
         assert len(_with_gid(ax.lines, "uav-state")) == scenario.n_uav
     if scenario.n_uav <= figures.LEGEND_MAX_UAVS:
@@ -153,7 +155,7 @@ def test_states_of_a_swarm_draw_the_graph_distance_errors_the_metrics_measure(ou
         assert fig.axes[0].get_legend() is None
     (largest,) = _with_gid(fig.axes[4].lines, "distance-error-max")
     (rms,) = _with_gid(fig.axes[4].lines, "distance-error-rms")
-    settled = trace.times >= scenario.settle_time_s - 1e-9
+    settled = trace.times >= scenario.evaluation.settle_time_s - 1e-9
     measured = metrics.compute_metrics(trace)
     # the figure finds the graph from the positions, the metrics read the loop's log
     assert largest.get_ydata()[settled].max() == pytest.approx(
@@ -191,26 +193,26 @@ def test_separation_figure_shows_what_the_metrics_count(outcomes, label):
     measured = metrics.compute_metrics(trace)
     fig = figures.separation_figure(outcome.frame, scenario)
     panels = [ax for ax in fig.axes if ax.get_ylabel()]
-    assert len(panels) == 1 + bool(scenario.obstacles) + scenario.communication_faults
+    assert len(panels) == 1 + bool(scenario.safety.obstacles) + scenario.communication_faults
     ax = panels[0]
     (separation,) = _with_gid(ax.lines, "separation")
     np.testing.assert_allclose(separation.get_ydata(), metrics.separation_over_time(trace))
-    assert scenario.safety_radius_m in [line.get_ydata()[0] for line in ax.lines]
+    assert scenario.safety.safety_radius_m in [line.get_ydata()[0] for line in ax.lines]
     collided = metrics.collision_periods(trace).any(axis=(1, 2))
     seconds, _ = _shaded_seconds(ax, "collision")
-    assert seconds == pytest.approx(collided.sum() * scenario.period_s)
+    assert seconds == pytest.approx(collided.sum() * scenario.timing.period_s)
     assert (seconds > 0) == (measured.collisions > 0)
     panel = 1
-    if scenario.obstacles:
+    if scenario.safety.obstacles:
         ax = panels[panel]
         panel += 1
         (clearance,) = _with_gid(ax.lines, "clearance")
-        obstacles = np.asarray(scenario.obstacles)
+        obstacles = np.asarray(scenario.safety.obstacles)
         gaps = np.linalg.norm(trace.states[:, :, None, :2] - obstacles[:, :2], axis=-1)
         np.testing.assert_allclose(clearance.get_ydata(), (gaps - obstacles[:, 2]).min(axis=(1, 2)))
         inside = metrics.obstacle_periods(trace).any(axis=(1, 2))
         seconds, _ = _shaded_seconds(ax, "intrusion")
-        assert seconds == pytest.approx(inside.sum() * scenario.period_s)
+        assert seconds == pytest.approx(inside.sum() * scenario.timing.period_s)
         assert (seconds > 0) == (measured.obstacle_intrusions > 0)
     if scenario.communication_faults:
         ax = panels[panel]
@@ -282,6 +284,7 @@ def test_a_long_scenario_label_wraps_at_commas(outcomes):
         ("paper", ["--set", "scenario.packet_loss=0.3", "--no-trigger"], "no_trigger"),
     ],
 )
+@pytest.mark.slow
 def test_run_writes_every_figure(tmp_path, scenario, extra, suffix):
     out = tmp_path / "run"
     args = ["run", "--optimizer", "pso", "--scenario", scenario, "--seed", "2"]

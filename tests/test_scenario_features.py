@@ -3,8 +3,6 @@ mixed vehicles, and the metrics at scale."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -14,14 +12,13 @@ from formation_bench.mpc.formations import (
     FormationShape,
     formation_offsets,
     scattered_initial_states,
-    swarm_scenario,
 )
 from formation_bench.mpc.loop import Trace, simulate
 from formation_bench.mpc.metrics import compute_metrics, graph_pairs, segment_min_distance
 from formation_bench.mpc.model import step_plant
 from formation_bench.mpc.network import Network, listening
 from formation_bench.mpc.problem import LocalProblem, Plan, coasting_plan, estimate_positions
-from formation_bench.mpc.scenario import PAPER, CommunicationGraph, get_scenario
+from formation_bench.mpc.scenario import PAPER, CommunicationGraph, get_scenario, swarm_scenario
 from formation_bench.mpc.trigger import tracking_condition
 from formation_bench.optimizers import get_optimizer
 
@@ -29,7 +26,7 @@ SHORT = {"n_steps": 40, "settle_time_s": 4.0}
 
 
 def random_problem_inputs(rng: np.random.Generator, scenario, n_neighbours: int):
-    horizon = scenario.horizon_steps
+    horizon = scenario.timing.horizon_steps
     state = np.array([0.0, 0.0, 0.3, 15.0]) + rng.normal(0, 1, 4)
     neighbours = rng.normal(0, 20, (n_neighbours, horizon, 2))
     desired = rng.normal(0, 10, (n_neighbours, horizon, 2))
@@ -47,13 +44,12 @@ def test_group_centre_equals_the_papers_centre_on_the_complete_graph(seed):
     rng = np.random.default_rng(seed)
     n_uav = 3 + seed
     offsets = formation_offsets("circle", n_uav, 10.0)
-    scenario = dataclasses.replace(
-        PAPER,
+    scenario = PAPER.with_overrides(
         initial_states=tuple((0.0, 0.0, 0.0, 15.0) for _ in range(n_uav)),
         formation_offsets=tuple(map(tuple, offsets)),
     )
     state, neighbours, desired, reference = random_problem_inputs(rng, scenario, n_uav - 1)
-    offset_sum = np.broadcast_to(offsets.sum(axis=0), (scenario.horizon_steps, 2)).copy()
+    offset_sum = np.broadcast_to(offsets.sum(axis=0), (scenario.timing.horizon_steps, 2)).copy()
     paper = LocalProblem(scenario, 0, state, neighbours, desired, reference)
     group = LocalProblem(scenario, 0, state, neighbours, desired, reference, offset_sum)
     assert group.centre_group == paper.centre_group == n_uav
@@ -86,7 +82,7 @@ def test_centre_weight_and_target_follow_the_group():
     rng = np.random.default_rng(1)
     scenario = get_scenario("swarm-5", graph="ring")
     state, neighbours, desired, reference = random_problem_inputs(rng, scenario, 2)
-    offset_sum = rng.normal(0, 5, (scenario.horizon_steps, 2))
+    offset_sum = rng.normal(0, 5, (scenario.timing.horizon_steps, 2))
     problem = LocalProblem(scenario, 2, state, neighbours, desired, reference, offset_sum)
     assert problem.centre_group == 3
     np.testing.assert_array_equal(problem.centre_neighbour_sum, neighbours.sum(axis=0) - offset_sum)
@@ -96,13 +92,13 @@ def test_centre_weight_and_target_follow_the_group():
             d,
             state,
             problem.block_of_step,
-            scenario.period_s,
-            scenario.rk4_substeps,
+            scenario.timing.period_s,
+            scenario.timing.rk4_substeps,
             neighbours,
             desired,
             reference,
-            scenario.w_dst,
-            scenario.w_trj,
+            scenario.weights.w_dst,
+            scenario.weights.w_trj,
             scenario.n_uav,
             offset_sum,
         )
@@ -120,7 +116,7 @@ def test_ring_and_k_nearest_neighbour_sets():
     ring = listening(scenario, positions)
     assert ring.sum(axis=1).tolist() == [2] * 5
     assert ring[0, 1] and ring[0, 4] and not ring[0, 2]
-    knn = listening(dataclasses.replace(scenario, graph="k-nearest", graph_neighbours=2), positions)
+    knn = listening(scenario.with_overrides(graph="k-nearest", graph_neighbours=2), positions)
     assert knn.sum(axis=1).tolist() == [2] * 5
     assert knn[0].nonzero()[0].tolist() == [1, 2]
     assert knn[3].nonzero()[0].tolist() == [2, 4]
@@ -181,7 +177,7 @@ def test_a_lost_plan_leaves_the_older_one_aged_by_the_periods_since_it_was_made(
     assert network.send(6, 1, newer, everyone).tolist() == [True, False, True]
     network.deliver(7)
     assert network.held[0][1] is older
-    estimate = estimate_positions(network.held[0][1], 7, 5, scenario.period_s, "coast")
+    estimate = estimate_positions(network.held[0][1], 7, 5, scenario.timing.period_s, "coast")
     np.testing.assert_array_equal(estimate, older.states[4:9, :2])  # 7 - 3 periods on
 
 
@@ -257,7 +253,8 @@ def test_the_network_hands_over_what_one_copy_at_a_time_would():
             lost = network.send(step, int(sender), plan, listeners)
             np.testing.assert_array_equal(lost, listeners & network.lost_state[:, sender])
             for receiver in np.flatnonzero(listeners & ~lost):
-                arrival = step + 1 + scenario.delay_steps + network.extra_delay[receiver, sender]
+                delay = scenario.communication.delay_steps + network.extra_delay[receiver, sender]
+                arrival = step + 1 + delay
                 copies.append((arrival, int(sender), int(receiver), plan, arrival > step + 1))
 
 
@@ -280,7 +277,7 @@ def test_losses_and_delays_are_logged_and_counted():
     scenario = get_scenario("paper", packet_loss=0.3, delay_steps=1, **SHORT)
     trace = simulate(scenario, get_optimizer("pso"), trigger=False, seed=3)
     metrics = compute_metrics(trace)
-    assert metrics.plans_sent == 3 * 2 * scenario.n_steps
+    assert metrics.plans_sent == 3 * 2 * scenario.timing.n_steps
     assert 0.15 < metrics.plans_lost / metrics.plans_sent < 0.45
     assert metrics.plans_late > 0
     assert metrics.plans_late + metrics.plans_lost <= metrics.plans_sent
@@ -301,12 +298,12 @@ def test_link_draws_do_not_depend_on_the_optimiser():
 
 
 def test_zero_wind_and_zero_noise_change_nothing():
-    quiet = dataclasses.replace(
-        PAPER, wind_mean_m_s=(0.0, 0.0), gust_std_m_s=0.0, gust_time_constant_s=7.0,
+    quiet = PAPER.with_overrides(
+        wind_mean_m_s=(0.0, 0.0), gust_std_m_s=0.0, gust_time_constant_s=7.0,
         position_noise_std_m=0.0, heading_noise_std_rad=0.0, speed_noise_std_m_s=0.0,
         **SHORT,
     )  # fmt: skip
-    base = dataclasses.replace(PAPER, **SHORT)
+    base = PAPER.with_overrides(**SHORT)
     a = simulate(base, get_optimizer("modified-bso"), trigger=True, seed=2)
     b = simulate(quiet, get_optimizer("modified-bso"), trigger=True, seed=2)
     np.testing.assert_array_equal(a.states, b.states)
@@ -364,7 +361,7 @@ def test_noise_and_mismatch_act_and_keep_the_prediction_model():
     # the plant's speed follows half the commanded acceleration
     np.testing.assert_allclose(
         trace.states[1:, :, 3] - trace.states[:-1, :, 3],
-        0.5 * trace.controls[:, :, 0] * scenario.period_s,
+        0.5 * trace.controls[:, :, 0] * scenario.timing.period_s,
         atol=1e-12,
     )
 
@@ -378,7 +375,7 @@ def hand_trace(positions: np.ndarray, scenario) -> Trace:
     states = np.zeros((n_instants, n_uav, 4))
     states[:, :, :2] = positions
     n_steps = n_instants - 1
-    times = np.arange(n_instants) * scenario.period_s
+    times = np.arange(n_instants) * scenario.timing.period_s
     return Trace(
         scenario=scenario, optimizer="hand", trigger=False, seed=0, times=times, states=states,
         controls=np.zeros((n_steps, n_uav, 2)), solved=np.ones((n_steps, n_uav), bool),
@@ -430,7 +427,7 @@ def test_collision_penalty_pushes_the_plan_away_from_a_neighbour():
     scenario = get_scenario("paper", w_collision=100.0, safety_radius_m=5.0)
     rng = np.random.default_rng(0)
     state = np.array([0.0, 0.0, 0.0, 15.0])
-    horizon = scenario.horizon_steps
+    horizon = scenario.timing.horizon_steps
     ahead = np.column_stack((15.0 * 0.2 * np.arange(1, horizon + 1), np.zeros(horizon)))
     neighbours = np.stack((ahead, ahead + 100.0))
     desired = np.zeros_like(neighbours)
@@ -468,7 +465,7 @@ def test_swarm_metrics_summarise_the_graph_pairs():
     assert pairs[0].sum() == 10  # the ring's pairs
     assert np.isfinite(columns["distance_error_rms_m"])
     assert columns["distance_error_rms_m"] <= columns["distance_error_max_m_max"]
-    paper = compute_metrics(simulate(dataclasses.replace(PAPER, **SHORT), get_optimizer("pso"),
+    paper = compute_metrics(simulate(PAPER.with_overrides(**SHORT), get_optimizer("pso"),
                                      trigger=True, seed=0)).columns()  # fmt: skip
     assert {"distance_error_max_m_d12", "distance_error_max_m_d23",
             "distance_error_max_m_d31"} <= set(paper)  # fmt: skip
@@ -559,4 +556,4 @@ def test_registered_swarms():
     for n_uav in (5, 10, 20, 25):
         scenario = get_scenario(f"swarm-{n_uav}")
         assert scenario.n_uav == n_uav
-        assert scenario.graph == CommunicationGraph.COMPLETE
+        assert scenario.communication.graph == CommunicationGraph.COMPLETE

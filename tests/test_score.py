@@ -27,6 +27,7 @@ from formation_bench.experiments.score import (
 )
 from formation_bench.instances import library as library_module
 from formation_bench.instances.library import PHASES, Library, load_shipped
+from formation_bench.optimizers import Budget
 from formation_bench.pipeline.spec import canonical_json
 
 DEGENERATE = 1
@@ -131,12 +132,12 @@ def test_score_resumes(scored, capsys):
 
 def test_the_split_is_part_of_a_run_but_all_keeps_the_key_of_before(toy_v2):
     runs = {
-        split: score_runs("pso", {}, [(200, None)], [0], library=toy_v2, split=split)[0]
+        split: score_runs("pso", {}, [Budget(200)], [0], library=toy_v2, split=split)[0]
         for split in ("test", "validation", "all")
     }
     assert len({run.key for run in runs.values()}) == 3
     assert len({run.entropy for run in runs.values()}) == 3
-    assert score_runs("pso", {}, [(200, None)], [0], library=toy_v2)[0].key == runs["test"].key
+    assert score_runs("pso", {}, [Budget(200)], [0], library=toy_v2)[0].key == runs["test"].key
     # a run over a whole library has the identity (and key) runs had before splits
     legacy = {
         "optimizer": "pso",
@@ -149,9 +150,7 @@ def test_the_split_is_part_of_a_run_but_all_keeps_the_key_of_before(toy_v2):
     }
     assert runs["all"].identity() == legacy
     assert runs["test"].identity() == {**legacy, "split": "test"}
-    assert ScoreRun("pso", "pso", canonical_json({}), 200, None, None, 0, "v2").key == (
-        runs["all"].key
-    )
+    assert ScoreRun("pso", "pso", canonical_json({}), Budget(200), 0, "v2").key == runs["all"].key
 
 
 @pytest.mark.slow  # two worker processes on all 504 instances of v1: about 7 s
@@ -163,7 +162,7 @@ def test_a_score_run_over_v1_is_repeatable_and_independent_of_where_it_runs(tmp_
     v1 = load_shipped("v1")
     assert len(stored) == 2 * len(v1)  # v1 has no splits: all of it
     assert set(stored["run_split"]) == {"all"} and set(stored["split"]) == {""}
-    (run,) = score_runs("random-search", {}, [(20, None)], [1], library=v1)
+    (run,) = score_runs("random-search", {}, [Budget(20)], [1], library=v1)
     again = execute_score(run)
     stored = stored[stored["run_key"] == run.key].reset_index(drop=True)
     columns = ["instance", "content_hash", "fun", "gap", "normalised_gap", "nfev", "nit"]
@@ -211,7 +210,7 @@ def test_report_writes_the_leaderboard_and_its_tables(scored, toy_v2, capsys):
 
 
 def test_report_refuses_runs_of_an_older_score_format(scored, toy_v2, tmp_path, capsys):
-    (run,) = score_runs("random-search", {}, [(20, None)], [0], library=toy_v2)
+    (run,) = score_runs("random-search", {}, [Budget(20)], [0], library=toy_v2)
     frame = execute_score(run, toy_v2).assign(score_format=SCORE_FORMAT - 1)
     with pytest.raises(StoreError, match=r"1 score run.* older score format"):
         write_score_report(frame, tmp_path / "r", figures=False)
@@ -236,8 +235,8 @@ def test_score_refuses_a_split_the_library_does_not_have(tmp_path, capsys):
     assert not (tmp_path / "s").exists()
     v1 = load_shipped("v1")
     with pytest.raises(ScoreError, match=r"--split: 'test' .* allowed: all"):
-        score_runs("pso", {}, [(None, None)], [0], library=v1, split="test")
-    assert score_runs("pso", {}, [(None, None)], [0], library=v1)[0].split == "all"
+        score_runs("pso", {}, [None], [0], library=v1, split="test")
+    assert score_runs("pso", {}, [None], [0], library=v1)[0].split == "all"
 
 
 def test_split_choices_are_the_score_splits():
@@ -262,3 +261,67 @@ def test_score_refuses_bad_input(tmp_path, capsys):
         err = capsys.readouterr().err
         assert needle in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "s").exists()
+
+
+def test_a_run_stored_before_its_configuration_was_kept_is_kept_and_read_with_it_empty(
+    toy_v2, tmp_path
+):
+    (run,) = score_runs("random-search", {}, [Budget(20)], [0], library=toy_v2)
+    rows = execute_score(run, toy_v2)
+    assert set(rows["config_hash"]) == {run.config_hash}
+    assert '"class":"RandomSearch"' in rows["optimizer_config"].iloc[0]
+    # a row of the same score format without the columns added since: kept, not redone
+    score.write_score(tmp_path, run, rows.drop(columns=["config_hash", "optimizer_config"]))
+    assert list(score.run_scores([run], tmp_path, jobs=1, library=toy_v2)) == []
+    stored = load_scores(tmp_path)
+    assert stored["config_hash"].isna().all() and stored["optimizer_config"].isna().all()
+    columns = ["instance", "fun", "normalised_gap", "nfev"]
+    pd.testing.assert_frame_equal(stored[columns], rows[columns])
+
+
+def test_a_run_stored_with_other_settings_is_redone(toy_v2, tmp_path):
+    (run,) = score_runs("random-search", {}, [Budget(20)], [0], library=toy_v2)
+    rows = execute_score(run, toy_v2)
+    score.write_score(tmp_path, run, rows.assign(config_hash="0" * 64))
+    assert score.stored_keys(tmp_path) == {run.key}  # whole and sealed
+    assert score.stored_keys(tmp_path, [run]) == set()  # but not of this configuration
+    assert [r.key for r in score.run_scores([run], tmp_path, jobs=1, library=toy_v2)] == [run.key]
+    assert set(load_scores(tmp_path)["config_hash"]) == {run.config_hash}
+
+
+def test_a_score_deadline_is_a_budget_in_seconds_named_in_milliseconds(toy_v2):
+    timed, capped = score_runs(
+        "pso", {}, [Budget(deadline_s=0.002), Budget(200, deadline_s=0.002)], [0], library=toy_v2
+    )
+    optimizer = timed.optimizer()
+    assert timed.identity()["deadline_ms"] == 2.0 and timed.identity()["max_evaluations"] is None
+    assert timed.budget_label == "deadline_ms=2"
+    assert capped.budget_label == "max_evaluations=200,deadline_ms=2"
+    # a deadline alone keeps the optimiser's own limits
+    own = optimizer.default_budget
+    assert timed.budget_for(optimizer) == Budget(
+        own.max_evaluations, own.max_iterations, deadline_s=0.002
+    )
+    assert (
+        len({timed.key, capped.key, score_runs("pso", {}, [None], [0], library=toy_v2)[0].key}) == 3
+    )
+
+
+def test_a_failing_score_run_is_named_and_the_others_are_stored(
+    toy_v2, tmp_path, monkeypatch, capsys
+):
+    real = score.execute_score
+
+    def fails_on_seed_1(run, library=None):
+        if run.seed == 1:
+            raise RuntimeError("a solver that broke")
+        return real(run, library)
+
+    monkeypatch.setattr(score, "execute_score", fails_on_seed_1)
+    out = str(tmp_path / "s")
+    argv = ["score", "--optimizer", "random-search", "--library", "v2", "--budgets", "20"]
+    assert run_cli(*argv, "--seeds", "0", "1", "--out", out, "--jobs", "1") == 1
+    err = capsys.readouterr().err
+    assert "failed: random-search / max_evaluations=20 / seed 1: RuntimeError: a solver" in err
+    assert "1 of 2 score runs stored" in err and "Traceback" not in err
+    assert set(load_scores(out)["seed"]) == {0}

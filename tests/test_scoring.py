@@ -292,3 +292,26 @@ def test_paired_table_by_hand():
     # without modified-bso, only the warm pairs
     alone = score_report.paired_table(paired_scores().query("optimizer != 'modified-bso'"))
     assert list(zip(alone["x"], alone["y"], strict=True)) == [("pso-warm", "pso")]
+
+
+def test_the_experiments_import_nothing_from_the_analysis():
+    """The analysis reads what the experiments produce: the gaps and targets a score run
+    records are the experiments' own, and the analysis takes them from there."""
+    import ast
+    from pathlib import Path
+
+    from formation_bench import experiments
+    from formation_bench.analysis import scoring
+    from formation_bench.experiments import gaps
+
+    for path in Path(experiments.__file__).parent.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = (
+                [node.module or ""]
+                if isinstance(node, ast.ImportFrom)
+                else [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else []
+            )
+            assert not [n for n in names if n.startswith("formation_bench.analysis")], path.name
+    assert scoring.normalised_gap is gaps.normalised_gap and scoring.TARGETS is gaps.TARGETS

@@ -66,6 +66,7 @@ def test_run_without_figures_imports_neither_plotting_nor_pandas(tmp_path):
     assert (tmp_path / "r" / "trace.parquet").is_file()
 
 
+@pytest.mark.slow
 def test_run_with_figures_draws_them_without_seaborn(tmp_path):
     out = tmp_path / "r"
     modules = modules_after("run", "--optimizer", "modified-bso", *SHORT, "--out", str(out))

@@ -25,6 +25,7 @@ from formation_bench.experiments.store import ResultStore, load_results, load_tr
 from formation_bench.experiments.suite import load_suite
 from formation_bench.experiments.sweep import run_sweep
 from formation_bench.instances.library import Library, shipped
+from formation_bench.optimizers import Budget
 from formation_bench.pipeline.record import is_timing_column
 
 SUITE = """\
@@ -79,7 +80,7 @@ def tiny_library() -> Library:
 
 
 def score_runs_of(library: Library) -> list[score.ScoreRun]:
-    return score.score_runs("random-search", {}, [(40, None)], [0, 1], library=library)
+    return score.score_runs("random-search", {}, [Budget(40)], [0, 1], library=library)
 
 
 def scores_of(out: Path) -> pd.DataFrame:

@@ -16,6 +16,8 @@ from formation_bench.analysis import suite_sections as sections
 from formation_bench.cli.main import main
 from formation_bench.experiments.suite import parse_suite
 from formation_bench.experiments.sweep import run_sweep
+from formation_bench.mpc.scenario import get_scenario
+from formation_bench.pipeline.spec import canonical_json, config_of
 
 OPTIMIZERS = ("modified-bso", "pso", "de")
 SCENARIOS = {
@@ -34,6 +36,11 @@ SCENARIOS = {
 def fake_results(seeds: int = 5, labels=tuple(SCENARIOS)) -> pd.DataFrame:
     rng = np.random.default_rng(11)
     rows = []
+    # what a stored row holds: the scenario it ran, every setting
+    configs = {
+        label: canonical_json(config_of(get_scenario(SCENARIOS[label][0], **SCENARIOS[label][1])))
+        for label in labels
+    }
     for label in labels:
         name, overrides, shift = SCENARIOS[label]
         for k, optimizer in enumerate(OPTIMIZERS):
@@ -46,6 +53,7 @@ def fake_results(seeds: int = 5, labels=tuple(SCENARIOS)) -> pd.DataFrame:
                         "scenario": label,
                         "scenario_name": name,
                         "scenario_overrides": json.dumps(overrides, sort_keys=True),
+                        "scenario_config": configs[label],
                         "optimizer": optimizer,
                         "optimizer_name": optimizer,
                         "trigger": True,
@@ -135,6 +143,7 @@ def test_swarm_medians_intervals_and_tests_match_direct_computation(five):
     assert (ranks[list(OPTIMIZERS)].to_numpy() == [1.0, 2.0, 3.0]).all()
 
 
+@pytest.mark.slow
 def test_swarm_markdown_tables_against_n_with_ranks_and_the_power_note(five, ten):
     swarm = five[0]["swarm"]
     text = swarm.markdown
@@ -229,6 +238,7 @@ def results(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_report_writes_the_sections_of_a_real_sweep(results, capsys):
     assert main(["report", str(results)]) == 0
     capsys.readouterr()
@@ -268,3 +278,27 @@ def test_the_robustness_sentence_compares_each_level_with_the_nominal_run_of_its
     nominal = medians[("N3-complete", "de", "max_evaluations=600")]
     assert f"{worst:.3g} against {nominal:.3g}" in text  # the +5 budget's own nominal run
     assert "18 of 18 (level, optimiser, trigger) cells" in text
+
+
+def test_the_rank_note_marks_the_worst_where_higher_values_are_better(five):
+    from formation_bench.mpc.metrics import Better, metric_of
+
+    found, _ = five
+    checked = set()
+    for section in found.values():
+        for metric, text in section.parts.items():
+            higher = metric_of(metric).better is Better.HIGHER
+            assert ("1 = lowest value (the worst here" in text) == higher, (section.name, metric)
+            checked.add(higher)
+    assert checked == {True, False}
+
+
+def test_scenario_columns_read_the_stored_scenario_not_todays_registry():
+    """A plugin's scenario (a name not registered here) is described from its stored settings,
+    and a stored setting wins over today's registered value."""
+    results = fake_results(seeds=1, labels=("N5-ring", "loss-0.3"))
+    results["scenario_name"] = "a-plugin-scenario"
+    results["scenario_overrides"] = "{}"
+    frame = sections.scenario_columns(results).drop_duplicates("scenario").set_index("scenario")
+    assert frame.loc["N5-ring", "n_uav"] == 5 and frame.loc["N5-ring", "graph"] == "ring"
+    assert frame.loc["loss-0.3", "family"] == "packet loss"

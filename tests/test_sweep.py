@@ -276,3 +276,78 @@ def test_a_sweep_that_fails_or_was_killed_is_not_left_running(tmp_path, monkeypa
     sweep(tiny(seeds="1"), out)
     states = [s["state"] for s in json.loads((out / "manifest.json").read_text())["sessions"]]
     assert states == ["killed", "done"]
+
+
+# --- records that describe themselves ----------------------------------------------------------
+
+
+def rewritten(path: Path, change) -> None:
+    """Store ``change(table)`` as the run file ``path`` (sealed, as a sweep writes it)."""
+    table = change(pq.read_table(path))
+    ResultStore(path.parent.parent).write_run(path.stem, table.to_pylist()[0], None)
+
+
+def test_a_row_holds_every_setting_of_what_ran_and_rebuilds_it(reference):
+    from formation_bench.pipeline.record import stored_configuration
+    from formation_bench.pipeline.spec import flat_config, resolved_config_hash
+
+    runs = {spec.key: spec for spec in tiny().runs()}
+    rows = load_results(reference[0]).to_dict("records")
+    for row in rows:
+        scenario, optimizer = stored_configuration(row)
+        expected_scenario, expected_optimizer = runs[row["run_key"]].configured()
+        assert (scenario, optimizer) == (expected_scenario, expected_optimizer)
+        assert json.loads(row["scenario_config"])["class"] == "Scenario"
+        # the stored settings are the very ones the configuration hash was taken of
+        budget = runs[row["run_key"]].budget_for(optimizer)
+        assert resolved_config_hash(scenario, optimizer, budget) == row["config_hash"]
+        assert flat_config(scenario)["n_steps"] == 10
+
+
+def test_a_stored_configuration_is_read_without_todays_registry(reference, monkeypatch):
+    from formation_bench.mpc import scenario as scenario_module
+    from formation_bench.pipeline.record import stored_configuration
+
+    row = load_results(reference[0]).to_dict("records")[0]
+    before = stored_configuration(row)
+    # today's registry knows another "paper": the stored row still says what ran
+    changed = scenario_module.get_scenario("paper", eps_p=0.123)
+    monkeypatch.setitem(scenario_module.SCENARIOS, "paper", changed)
+    assert stored_configuration(row) == before
+    # a row stored before configurations were kept is rebuilt from the registry only when
+    # that reproduces its configuration hash: here it no longer does
+    old = {k: v for k, v in row.items() if k not in ("scenario_config", "optimizer_config")}
+    assert stored_configuration(old) == (None, None)
+    monkeypatch.undo()
+    assert stored_configuration(old) == before
+
+
+def test_an_added_column_redoes_no_stored_run_and_reads_empty(reference, tmp_path):
+    out = tmp_path / "old"
+    shutil.copytree(reference[0], out)
+    files = sorted((out / "runs").glob("*.parquet"))
+
+    def before_configurations(table: pa.Table) -> pa.Table:
+        return table.drop_columns(["scenario_config", "optimizer_config"])
+
+    def format_3(table: pa.Table) -> pa.Table:  # 4 only added columns to 3
+        table = before_configurations(table)
+        index = table.schema.get_field_index("record_format")
+        return table.set_column(index, "record_format", pa.array([3]))
+
+    def format_2(table: pa.Table) -> pa.Table:  # columns that meant other things
+        index = table.schema.get_field_index("record_format")
+        return table.set_column(index, "record_format", pa.array([2]))
+
+    rewritten(files[0], before_configurations)
+    rewritten(files[1], format_3)
+    rewritten(files[2], format_2)
+    summary = sweep(tiny(), out)
+    assert summary.redo == {"stale": 1} and summary.stored == 1 and summary.already == 11
+    results = load_results(out)
+    old = results["run_key"].isin([files[0].stem, files[1].stem])
+    assert results.loc[old, "scenario_config"].isna().all()
+    assert results.loc[~old, "scenario_config"].notna().all()
+    expected = reference[1].drop(columns=["scenario_config", "optimizer_config", "record_format"])
+    got = deterministic(results).drop(columns=["scenario_config", "optimizer_config"])
+    pd.testing.assert_frame_equal(got.drop(columns="record_format"), expected, check_exact=True)

@@ -39,6 +39,7 @@ def deterministic(frame: pd.DataFrame) -> pd.DataFrame:
     return frame[keep].sort_values("run_key").reset_index(drop=True)
 
 
+@pytest.mark.slow
 def test_dask_local_cluster_matches_the_local_path(tmp_path):
     suite_file = tmp_path / "dask.toml"
     suite_file.write_text(SUITE)
@@ -109,6 +110,7 @@ def test_without_the_dask_extra_the_scheduler_option_names_it_and_leaves_no_fold
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_no_live_worker_for_the_timeout_stops_with_one_line_and_resumes(tmp_path, capsys):
     suite_file = tmp_path / "dask.toml"
     suite_file.write_text(SUITE)

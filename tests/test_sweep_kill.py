@@ -78,6 +78,7 @@ def suite_file(tmp_path):
     return path
 
 
+@pytest.mark.slow
 def test_sigkill_then_resume_gives_every_run_once_and_identical_metrics(suite_file, tmp_path):
     out, log = tmp_path / "killed", tmp_path / "sweep.log"
     proc = start_sweep(suite_file, out, log)
@@ -115,6 +116,7 @@ def test_sigkill_then_resume_gives_every_run_once_and_identical_metrics(suite_fi
     pd.testing.assert_frame_equal(deterministic(got), expected, check_exact=True)
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_cleanly_and_leaves_a_resumable_folder(suite_file, tmp_path):
     out, log = tmp_path / "interrupted", tmp_path / "sweep.log"
     proc = start_sweep(suite_file, out, log)

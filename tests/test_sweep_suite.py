@@ -19,7 +19,7 @@ from formation_bench.experiments.suite import (
 )
 from formation_bench.mpc.loop import simulate
 from formation_bench.mpc.metrics import compute_metrics
-from formation_bench.optimizers import OPTIMIZERS
+from formation_bench.optimizers import OPTIMIZERS, Budget
 from formation_bench.pipeline.record import is_metric_column, is_timing_column
 from formation_bench.pipeline.spec import canonical_json, config_of, sha256_hex
 
@@ -70,10 +70,14 @@ def test_shipped_suites_load_with_the_promised_contents():
     paper_budget = load_suite("paper-budget")
     assert [e.name for e in paper_budget.optimizers[:4]] == ["modified-bso", "pso", "cma-es", "de"]
     assert len(paper_budget.runs()) == 4 * 5 * 2 * 10 + 2 * 2 * 10
-    assert comparison.budgets == ((1200, None, None),) and len(comparison.seeds) == 30
+    assert comparison.budgets == (Budget(max_evaluations=1200),) and len(comparison.seeds) == 30
     deadline = load_suite("deadline")
-    assert [b[2] for b in deadline.budgets] == [0.5, 1.0, 2.0, 5.0]
-    assert {r.budget.deadline_s for r in deadline.runs()[:40]} == {0.0005, 0.001, 0.002, 0.005}
+    # deadline_ms in the file, seconds in the Budget; the optimisers' own limits kept
+    assert [b.deadline_s for b in deadline.budgets] == [0.0005, 0.001, 0.002, 0.005]
+    assert all(b.keeps_own_limits for b in deadline.budgets)
+    assert {r.budget_label for r in deadline.runs()} == {
+        f"deadline_ms={ms}" for ms in ("0.5", "1", "2", "5")
+    }
 
 
 def test_expansion_order_labels_and_budgets():
@@ -107,7 +111,8 @@ def test_a_sweep_run_is_simulate_with_the_identity_entropy():
     result = execute_run(run)
     assert result.error is None
     scenario, optimizer = run.build()
-    trace = simulate(scenario, optimizer, trigger=run.trigger, seed=run.entropy, budget=run.budget)
+    budget = run.budget_for(optimizer)
+    trace = simulate(scenario, optimizer, trigger=run.trigger, seed=run.entropy, budget=budget)
     metrics = compute_metrics(trace).columns()
     assert result.row["seed"] == run.seed and result.row["seed_entropy"] == str(run.entropy)
     compared = [c for c in metrics if not is_timing_column(c)]
@@ -321,7 +326,9 @@ def test_an_optimiser_entry_runs_at_its_own_budgets(tmp_path):
     suite = parse_suite(text, tmp_path / "t.toml")
     per_label = {}
     for run in suite.runs():
-        per_label.setdefault(run.optimizer_label, set()).add(run.budget_max_evaluations)
+        per_label.setdefault(run.optimizer_label, set()).add(
+            None if run.budget is None else run.budget.max_evaluations
+        )
     assert per_label["plain"] == {None}
     assert per_label["modified-bso[max_iterations=2]"] == {None, 200}
     assert len(suite.runs()) == run_count(suite) == (2 + 1) * 2 * 2
@@ -348,10 +355,10 @@ def test_swarm_suite_plans_every_size_on_every_graph_with_connected_range_graphs
     planned = {}
     for entry in suite.scenarios:
         scenario = _scenario_of(entry)
-        planned.setdefault(scenario.n_uav, set()).add(str(scenario.graph))
-        if scenario.graph == "k-nearest":
-            assert scenario.graph_neighbours == 3
-        if scenario.graph == "range":
+        planned.setdefault(scenario.n_uav, set()).add(str(scenario.communication.graph))
+        if scenario.communication.graph == "k-nearest":
+            assert scenario.communication.graph_neighbours == 3
+        if scenario.communication.graph == "range":
             start = scenario.initial_state_array()[:, :2]
             links = listening(scenario, start)
             assert connected_components(links, directed=True, connection="strong")[0] == 1
@@ -373,7 +380,9 @@ def test_the_range_of_the_swarm_suite_keeps_the_tightest_swarm_connected_in_flig
     from formation_bench.mpc.network import listening
 
     suite = load_suite("swarm")
-    ranges = {_scenario_of(e).graph_range_m for e in suite.scenarios if "range" in e.label}
+    ranges = {
+        _scenario_of(e).communication.graph_range_m for e in suite.scenarios if "range" in e.label
+    }
     (chosen,) = ranges
 
     def components(links):
@@ -394,7 +403,8 @@ def test_the_range_of_the_swarm_suite_keeps_the_tightest_swarm_connected_in_flig
         if r.scenario_label == "N5-range" and r.optimizer_name == "modified-bso"
     )
     scenario, optimizer = run.build()
-    trace = simulate(scenario, optimizer, trigger=run.trigger, seed=run.entropy, budget=run.budget)
+    budget = run.budget_for(optimizer)
+    trace = simulate(scenario, optimizer, trigger=run.trigger, seed=run.entropy, budget=budget)
     assert {components(links) for links in trace.neighbours} == {1}
 
 
@@ -412,15 +422,24 @@ def test_robustness_suite_varies_one_disturbance_family_at_a_time():
         assert len(active) <= 1, entry.label
         levels.setdefault(active[0] if active else "nominal", []).append(scenario)
     assert len(levels["nominal"]) == 1
-    assert sorted(s.gust_std_m_s for s in levels["wind"]) == [0.0, 0.5, 1.0, 2.0]
-    assert any(s.wind_mean_m_s != (0.0, 0.0) for s in levels["wind"])
-    assert sorted(s.position_noise_std_m for s in levels["noise"]) == [0.1, 0.3]
-    assert all(s.heading_noise_std_rad > 0 and s.speed_noise_std_m_s > 0 for s in levels["noise"])
-    losses = sorted((s.packet_loss, s.loss_correlation) for s in levels["packet loss"])
+    assert sorted(s.disturbances.gust_std_m_s for s in levels["wind"]) == [0.0, 0.5, 1.0, 2.0]
+    assert any(s.disturbances.wind_mean_m_s != (0.0, 0.0) for s in levels["wind"])
+    assert sorted(s.disturbances.position_noise_std_m for s in levels["noise"]) == [0.1, 0.3]
+    assert all(
+        s.disturbances.heading_noise_std_rad > 0 and s.disturbances.speed_noise_std_m_s > 0
+        for s in levels["noise"]
+    )
+    losses = sorted(
+        (s.communication.packet_loss, s.communication.loss_correlation)
+        for s in levels["packet loss"]
+    )
     assert losses == [(0.1, 0.0), (0.3, 0.0), (0.3, 0.7), (0.5, 0.0)]
-    assert sorted(s.delay_steps for s in levels["delay"]) == [1, 2, 4]
+    assert sorted(s.communication.delay_steps for s in levels["delay"]) == [1, 2, 4]
     (mismatch,) = levels["mismatch"]
-    assert (mismatch.plant_accel_gain, mismatch.plant_turn_rate_gain) == (0.8, 0.8)
+    assert (
+        mismatch.disturbances.plant_accel_gain,
+        mismatch.disturbances.plant_turn_rate_gain,
+    ) == (0.8, 0.8)
     assert len(suite.runs()) == 15 * 3 * 2 * 5
 
 
@@ -428,7 +447,7 @@ def test_obstacles_suite_turns_the_penalties_on_and_off():
     suite = load_suite("obstacles")
     assert [e.name for e in suite.optimizers] == ["modified-bso", "pso", "ltv-osqp"]
     settings = sorted(
-        (e.name, s.w_obstacle > 0 and bool(s.obstacles), s.w_collision > 0)
+        (e.name, s.safety.w_obstacle > 0 and bool(s.safety.obstacles), s.safety.w_collision > 0)
         for e in suite.scenarios
         for s in [_scenario_of(e)]
     )
@@ -438,5 +457,7 @@ def test_obstacles_suite_turns_the_penalties_on_and_off():
         ("swarm-10", False, False),
         ("swarm-10", False, True),
     ]
-    assert all(_scenario_of(e).obstacles for e in suite.scenarios if e.name == "paper-obstacles")
+    assert all(
+        _scenario_of(e).safety.obstacles for e in suite.scenarios if e.name == "paper-obstacles"
+    )
     assert len(suite.runs()) == 4 * 3 * 10

@@ -2,7 +2,7 @@
 
 Two kinds of input:
 
-- the long trace of ONE run (see :func:`formation_bench.pipeline.outputs.trace_frame`):
+- the long trace of ONE run (see :func:`formation_bench.pipeline.outputs.trace_table`):
   figures like the paper's Figs. 3-7 (:func:`trajectory_figure`, :func:`states_figure`,
   :func:`trigger_figure`);
 - a results table, one row per run (as
@@ -16,6 +16,8 @@ re-exported here.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -31,7 +33,7 @@ from formation_bench.analysis.run_figures import (  # noqa: F401
     trigger_figure,
 )
 from formation_bench.analysis.run_figures import wide as _wide
-from formation_bench.mpc.metrics import pair_names
+from formation_bench.mpc.metrics import column_label, log_scale, pair_names
 
 
 def _settled(frame: pd.DataFrame, settle_time_s: float) -> pd.DataFrame:
@@ -86,38 +88,12 @@ def trigger_sentence(frame: pd.DataFrame) -> str:
 
 # --- figures of a results table (one row per run) ----------------------------------------
 
-METRIC_LABELS = {
-    "tracking_error_max_m": "tracking error max after settling (m)",
-    "tracking_error_rms_m": "tracking error RMS after settling (m)",
-    "distance_error_max_m_max": "largest distance error after settling (m)",
-    "closed_loop_cost": "closed-loop cost from t = 0, eq. (11) summed (m² s)",
-    "steady_state_cost": "steady-state cost, eq. (11) after settling (m² s)",
-    "transient_cost": "transient cost, eq. (11) before settling (m² s)",
-    "settling_time_s": "settling time (s)",
-    "min_separation_m": "smallest separation of two UAVs (m)",
-    "solves_total": "solves per run, all UAVs",
-    "solve_time_median_s": "median solve time (s)",
-    "nfev_total": "objective evaluations per run",
-    "distance_error_rms_m": "distance error RMS, graph pairs (m)",
-    "collisions": "collisions per run (pairs within the safety radius)",
-    "collision_time_s": "time pairs spent within the safety radius (s)",
-    "obstacle_intrusions": "obstacle intrusions per run",
-    "obstacle_time_s": "time UAVs spent inside obstacles (s)",
-}
-"""Axis labels, with units, of the headline metrics."""
 
-LOG_SCALE = frozenset(
-    {"closed_loop_cost", "transient_cost", "steady_state_cost", "solve_time_median_s", "nfev_total"}
-)
-"""Metrics that may spread over orders of magnitude: a log axis when they do (> 20x)."""
-
-
-def label(metric: str) -> str:
-    """Axis label of a metric (its name and declared unit when no label is written)."""
-    from formation_bench.mpc.metrics import metric_of
-
-    info = metric_of(metric)
-    return METRIC_LABELS.get(metric, f"{metric} ({info.unit})" if info else metric)
+def save_report_figure(figure: plt.Figure, path: Path) -> Path:
+    """Save a figure of the report as PNG, cropped to what it draws, and free it."""
+    figure.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(figure)
+    return path
 
 
 def _order(frame: pd.DataFrame, factor: str, by: str | None = None) -> list:
@@ -156,10 +132,10 @@ def distribution_figure(
             data=data, x=factor, y=metric, order=shown, ax=ax, color="#1f3b5a", size=3, alpha=0.6
         )
         values = data[metric][data[metric] > 0]
-        if metric in LOG_SCALE and len(values) and values.max() > 20 * values.min():
+        if log_scale(metric) and len(values) and values.max() > 20 * values.min():
             ax.set_yscale("log")
         ax.set_xlabel(factor)
-        ax.set_ylabel(label(metric) if ax is axes[0][0] else "")
+        ax.set_ylabel(column_label(metric) if ax is axes[0][0] else "")
         ax.tick_params(axis="x", rotation=35)
         for tick in ax.get_xticklabels():
             tick.set_horizontalalignment("right")
@@ -198,7 +174,7 @@ def deadline_figure(
         ax.set_xticks(deadlines, [f"{d:g}" for d in deadlines])
         ax.minorticks_off()
         ax.set_xlabel("per-solve deadline (ms)")
-        ax.set_ylabel(label(metric))
+        ax.set_ylabel(column_label(metric))
     axes[0][0].legend(fontsize=8)
     fig.suptitle(f"median and quartiles per {factor} over the seeds", fontsize=10)
     return fig
@@ -301,7 +277,7 @@ def solves_figure(frame: pd.DataFrame, factor: str = "optimizer") -> plt.Figure:
         showfliers=False,
     )
     ax.set_xlabel(factor)
-    ax.set_ylabel(label("solves_total"))
+    ax.set_ylabel(column_label("solves_total"))
     ax.tick_params(axis="x", rotation=35)
     for tick in ax.get_xticklabels():
         tick.set_horizontalalignment("right")
@@ -384,7 +360,7 @@ def trigger_tradeoff_figure(frame: pd.DataFrame) -> plt.Figure:
         means = frame.groupby("threshold_m")[["solves_saved", metric]].median()
         ax.plot(means["solves_saved"], means[metric], "k--", lw=1, label="medians")
         ax.set_xlabel("fraction of solves saved by the trigger")
-        ax.set_ylabel(METRIC_LABELS[metric])
+        ax.set_ylabel(column_label(metric))
         ax.legend(title="eps_p = eps_O (m); 0 = no trigger", fontsize=8, title_fontsize=8)
     fig.suptitle("Trigger trade-off: solves saved against accuracy", fontsize=11)
     return fig
@@ -437,7 +413,7 @@ def metric_vs_n_figure(
         )
         ax.set_xticks(sorted(data["n_uav"].unique()))
         ax.set_xlabel("UAVs (N)")
-        ax.set_ylabel(label(metric))
+        ax.set_ylabel(column_label(metric))
         ax.set_title(f"{panel}: {value}", fontsize=10)
     _log_if_spread(axes[0][0], data[metric])
     if axes[0][-1].get_legend() is not None:
@@ -492,7 +468,7 @@ def metric_vs_level_figure(frame: pd.DataFrame, metric: str, hue: str = "optimiz
             )
             ax.set_title(f"{family}, trigger {trigger}", fontsize=10)
             ax.set_xlabel("")
-            ax.set_ylabel(label(metric) if col == 0 else "")
+            ax.set_ylabel(column_label(metric) if col == 0 else "")
             ax.tick_params(axis="x", rotation=35)
             for tick in ax.get_xticklabels():
                 tick.set_horizontalalignment("right")
@@ -568,7 +544,7 @@ def safety_metrics_figure(
                     va="bottom",
                 )
         ax.set_xlabel("")
-        ax.set_ylabel(label(metric))
+        ax.set_ylabel(column_label(metric))
         ax.tick_params(axis="x", labelsize=8)
     if axes[0][-1].get_legend() is not None:
         sns.move_legend(axes[0][-1], "upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)

@@ -7,20 +7,30 @@ the words change when the results do.
 
 from __future__ import annotations
 
-import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from formation_bench.analysis.figures import METRIC_LABELS
 from formation_bench.analysis.paper import PAPER_FIGURES
 from formation_bench.analysis.suite_sections import Section, sections
 from formation_bench.experiments.store import load_results, load_traces
 from formation_bench.instances.instants import record_instants
+from formation_bench.mpc.metrics import column_label
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import Budget, get_optimizer
+from formation_bench.pipeline.record import STORED_CONFIGURATION_COLUMNS, stored_scenario
+
+COMPARED_METRICS = (
+    "steady_state_cost",
+    "tracking_error_max_m",
+    "distance_error_max_m_max",
+    "transient_cost",
+)
+"""The metrics the notebook compares the optimisers and the ablation variants on: the steady
+state and the errors after the settle time first, the start-up apart."""
 
 
 def find_stores(results_dir: Path | str) -> dict[str, Path]:
@@ -100,7 +110,7 @@ def distribution_sentence(results: pd.DataFrame, metric: str, by: str = "optimiz
     medians = results.groupby(by)[metric].median().sort_values()
     low, high = medians.index[0], medians.index[-1]
     return (
-        f"Lowest median {METRIC_LABELS.get(metric, metric)}: {low} ({medians.iloc[0]:.3g}); "
+        f"Lowest median {column_label(metric)}: {low} ({medians.iloc[0]:.3g}); "
         f"highest: {high} ({medians.iloc[-1]:.3g}), over {results.groupby(by).size().min()}"
         f"-{results.groupby(by).size().max()} runs each."
     )
@@ -155,7 +165,7 @@ def ablation_sentence(effects: list[AblationEffect], alpha: float = 0.05) -> str
                 f"{e.variant} (trigger {e.trigger}) is {direction} (A12 = {e.a12:.2f}, "
                 f"p = {e.p_holm:.3g})"
             )
-    metric = METRIC_LABELS.get(effects[0].metric, effects[0].metric)
+    metric = column_label(effects[0].metric)
     if not parts:
         return (
             f"No variant differs from the full modified BSO in {metric} at a Holm-adjusted "
@@ -182,7 +192,7 @@ def convergence_curves(
     scenario = get_scenario("paper")
     if n_steps_scenario is not None:
         scenario = scenario.with_overrides(n_steps=n_steps_scenario, settle_time_s=0.0)
-    steps = tuple(s for s in steps if s < scenario.n_steps)
+    steps = tuple(s for s in steps if s < scenario.timing.n_steps)
     instants = record_instants(scenario, get_optimizer("modified-bso"), list(steps), seed=0)
     budget = Budget(max_evaluations=max_evaluations)
     rows = []
@@ -229,14 +239,18 @@ def uav_counts(runs: pd.DataFrame) -> pd.Series:
 
 
 def trigger_tradeoff(runs: pd.DataFrame) -> pd.DataFrame:
-    """Per trigger threshold (from the scenario overrides): solves saved and errors, per seed."""
-
-    def threshold(overrides: str) -> float:
-        fields = json.loads(overrides) if overrides else {}
-        return float(fields.get("eps_p", get_scenario("paper").eps_p))
+    """Per trigger threshold (the stored scenario's ``eps_p``): solves saved and errors, per
+    seed."""
+    key_columns = [c for c in STORED_CONFIGURATION_COLUMNS if c in runs]
+    keys = runs[key_columns].astype(str).apply(tuple, axis=1)
+    thresholds: dict[tuple, float] = {}
+    for key, row in zip(keys, runs[key_columns].to_dict("records"), strict=True):
+        if key not in thresholds:
+            scenario = stored_scenario(row)
+            thresholds[key] = math.nan if scenario is None else scenario.trigger.eps_p
 
     frame = runs.assign(
-        threshold_m=runs["scenario_overrides"].map(threshold),
+        threshold_m=keys.map(thresholds),
         solves_saved=1.0 - runs["solves_total"] / (runs["steps"] * uav_counts(runs)),
     )
     frame.loc[~frame["trigger"].astype(bool), "threshold_m"] = 0.0
@@ -309,7 +323,7 @@ def swarm_sentence(section: Section, metric: str = "tracking_error_max_m") -> st
     graph, per optimiser, and which graph and optimiser have the lowest at the most UAVs (of
     the first trigger setting and budget)."""
     rows = _medians(section, metric, one_setting=True)
-    name = METRIC_LABELS.get(metric, metric)
+    name = column_label(metric)
     if not len(rows):
         return f"No run has a median {name}."
     smallest, largest = int(rows["n_uav"].min()), int(rows["n_uav"].max())
@@ -336,7 +350,7 @@ def robustness_sentence(section: Section, metric: str = "tracking_error_max_m") 
     """The level that raises the median of ``metric`` most above the nominal one, and how many
     (level, optimiser, trigger) cells are above the nominal in nearly every pairing."""
     rows = _medians(section, metric, one_setting=False)
-    name = METRIC_LABELS.get(metric, metric)
+    name = column_label(metric)
     # each level against its own nominal run: same base scenario, optimiser, trigger and budget
     keys = ["optimizer", "trigger", "budget"]
     nominal = rows[rows["family"] == "nominal"].set_index(["scenario", *keys])["median"]

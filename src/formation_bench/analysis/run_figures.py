@@ -1,14 +1,15 @@
 """The figures of one run (the paper's Figs. 3-7, and the separation figure), drawn with
 Matplotlib alone.
 
-``run`` and ``reproduce`` draw these. They use Matplotlib's bundled seaborn style
-sheets rather than seaborn itself: importing seaborn imports
-``scipy.stats``, about a second of a command that draws three figures. The
+``run`` and ``reproduce`` draw these (:func:`write_run_figures`, :func:`write_trigger_figure`).
+They use Matplotlib's bundled seaborn style sheets rather than seaborn itself: importing
+seaborn imports ``scipy.stats``, about a second of a command that draws three figures. The
 figures of a results table are in :mod:`formation_bench.analysis.figures`.
 
-They read the trace table (:func:`formation_bench.pipeline.outputs.trace_frame`) of one
-run and, for what the table does not hold (obstacles, the safety radius, the communication
-graph), its :class:`~formation_bench.mpc.scenario.Scenario`. They draw any number of UAVs:
+They read the trace table (:func:`formation_bench.pipeline.outputs.trace_table`, its columns
+declared in :mod:`formation_bench.pipeline.trace_columns`) of one run and, for what the table
+does not hold (obstacles, the safety radius, the communication graph), its
+:class:`~formation_bench.mpc.scenario.Scenario`. They draw any number of UAVs:
 up to :data:`LEGEND_MAX_UAVS` each has a colour of the style and a legend entry, beyond it a
 colour of :data:`UAV_COLORMAP` and a colour bar instead of the entries.
 """
@@ -18,6 +19,7 @@ from __future__ import annotations
 import functools
 import re
 from collections.abc import Callable
+from pathlib import Path
 from typing import ParamSpec
 
 import matplotlib.pyplot as plt
@@ -140,10 +142,10 @@ def formation_edges(offsets: np.ndarray) -> list[tuple[int, int]]:
 
 def _obstacle_handles(ax: plt.Axes, scenario: Scenario) -> list:
     """Obstacles as filled circles and their penalty margins dashed; legend handles."""
-    if not scenario.obstacles:
+    if not scenario.safety.obstacles:
         return []
-    margin = scenario.obstacle_margin_m
-    for x, y, radius in scenario.obstacles:
+    margin = scenario.safety.obstacle_margin_m
+    for x, y, radius in scenario.safety.obstacles:
         ax.add_patch(
             Circle(
                 (x, y),
@@ -346,7 +348,9 @@ def states_figure(
         ax.axvline(settle_time_s, color="0.5", ls="--", lw=1)
         ax.set_yscale("log")
         ax.set_ylabel("|actual - desired| distance (m)")
-        ax.legend(fontsize=8, title=f"{scenario.graph} graph's pairs", title_fontsize=8)
+        ax.legend(
+            fontsize=8, title=f"{scenario.communication.graph} graph's pairs", title_fontsize=8
+        )
     ax.set_xlabel("time (s)")
     ax = axes[2, 1]
     reference = frame[frame["uav"] == frame["uav"].min()].set_index("time_s")
@@ -402,7 +406,7 @@ def obstacle_clearance(frame: pd.DataFrame, scenario: Scenario) -> tuple[np.ndar
     ``obstacle_intrusions`` metric counts them."""
     _check_scenario(frame, scenario)
     _, positions = positions_of(frame)
-    obstacles = np.asarray(scenario.obstacles, dtype=np.float64).reshape(-1, 3)
+    obstacles = np.asarray(scenario.safety.obstacles, dtype=np.float64).reshape(-1, 3)
     relative = positions[:, :, None] - obstacles[:, :2]  # (T + 1, N, K, 2)
     clearance = np.linalg.norm(relative, axis=-1) - obstacles[:, 2]
     inside = metrics.obstacle_periods_at(positions, obstacles)
@@ -450,7 +454,7 @@ def separation_figure(frame: pd.DataFrame, scenario: Scenario) -> plt.Figure:
     can be lost or late, the plans sent, lost and late at every instant."""
     _check_scenario(frame, scenario)
     times, positions = positions_of(frame)
-    has_obstacles = bool(scenario.obstacles)
+    has_obstacles = bool(scenario.safety.obstacles)
     faults = scenario.communication_faults
     n_panels = 1 + has_obstacles + faults
     fig, axes = plt.subplots(
@@ -467,7 +471,7 @@ def separation_figure(frame: pd.DataFrame, scenario: Scenario) -> plt.Figure:
     ax = axes[0]
     ax.plot(times, separation, color="k", lw=1.2, label="closest pair", gid="separation")
     ax.axhline(slot_gap, color="0.5", ls=":", lw=1, label=f"closest slots {slot_gap:.3g} m")
-    radius = scenario.safety_radius_m
+    radius = scenario.safety.safety_radius_m
     alarm = _colours()[2]
     ax.axhline(radius, color=alarm, ls="--", lw=1.2, label=f"safety radius {radius:g} m")
     runs = _shade(ax, times, collision_instants(frame, radius), alarm, "collision")
@@ -483,7 +487,7 @@ def separation_figure(frame: pd.DataFrame, scenario: Scenario) -> plt.Figure:
         panel += 1
         ax.plot(times, clearance, color="k", lw=1.2, label="closest UAV", gid="clearance")
         ax.axhline(0.0, color=OBSTACLE_COLOUR, lw=1.2, label="obstacle edge")
-        margin = scenario.obstacle_margin_m
+        margin = scenario.safety.obstacle_margin_m
         if margin > 0:
             ax.axhline(
                 margin, color=OBSTACLE_COLOUR, ls="--", lw=1.0, label=f"penalty margin {margin:g} m"
@@ -528,3 +532,41 @@ def save(fig: plt.Figure, path) -> None:
     """Save as PNG at a legible resolution and free the figure."""
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def named_desired_distances(scenario: Scenario) -> dict[str, float]:
+    """The desired distance of every named UAV pair (:func:`pair_names`), as
+    :func:`states_figure` takes them."""
+    desired = scenario.desired_distances()
+    return {name: float(desired[i, j]) for name, i, j in pair_names(scenario.n_uav)}
+
+
+def write_run_figures(
+    frame: pd.DataFrame,
+    scenario: Scenario,
+    out_dir: Path,
+    suffix: str,
+    fig_numbers: tuple[int, int],
+) -> list[Path]:
+    """Trajectory, states and separation figures of one run (its trace table and scenario);
+    returns the paths written.
+
+    The first two are numbered as the paper's (``fig3_trajectory_no_trigger.png``, ...); the
+    separation figure, which the paper has not, is ``separation_<suffix>.png``.
+    """
+    desired_by_name = named_desired_distances(scenario)
+    trajectory = out_dir / f"fig{fig_numbers[0]}_trajectory_{suffix}.png"
+    states = out_dir / f"fig{fig_numbers[1]}_states_{suffix}.png"
+    separation = out_dir / f"separation_{suffix}.png"
+    save(trajectory_figure(frame, scenario), trajectory)
+    settle_time_s = scenario.evaluation.settle_time_s
+    save(states_figure(frame, desired_by_name, settle_time_s, scenario), states)
+    save(separation_figure(frame, scenario), separation)
+    return [trajectory, states, separation]
+
+
+def write_trigger_figure(frame: pd.DataFrame, out_dir: Path, name: str) -> Path:
+    """Fig. 7 of one run (its trace table) as ``out_dir/name``."""
+    path = out_dir / name
+    save(trigger_figure(frame), path)
+    return path

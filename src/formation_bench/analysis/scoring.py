@@ -1,20 +1,14 @@
 """Statistics of solves against best-known optima: the measures optimisation benchmarks use.
 
-A *trial* is one optimiser's solve of one instance with one seed. Two gaps measure how far
-its cost ``f`` ends from the instance's best-known cost ``J*``:
-
-- :func:`relative_gap`: ``(f - J*) / |J*|``, the share of ``J*`` left. Reported, but noise
-  where ``J*`` is near zero, and no target of it means the same on every problem;
-- :func:`normalised_gap`: ``(f - J*) / (f_warm - J*)``, the share of the possible
-  improvement (from the warm start's cost ``f_warm`` to ``J*``) left: 1 at the warm start,
-  0 at ``J*``. Defined wherever the warm start leaves something to gain, that is on every
-  non-degenerate instance of the library; the fixed-target measures use it.
+A *trial* is one optimiser's solve of one instance with one seed. Its gaps to the instance's
+best-known cost ``J*`` (:func:`relative_gap`, :func:`normalised_gap`), the targets of the
+normalised gap (:data:`TARGETS`) and its evaluations to each target
+(:func:`evaluations_to_target`) are what a score run records: they are defined in
+:mod:`formation_bench.experiments.gaps`, where the runs are made, and read here.
 
 The fixed-target measures, at the targets :data:`TARGETS` of the normalised gap (target
 1e-3: 99.9 % of the possible improvement made):
 
-- :func:`evaluations_to_target`: from a solve's history, the evaluations after which its
-  best cost so far first reached a target;
 - :func:`success_rate`: the share of trials whose final gap is at most a target;
 - :func:`expected_running_time`: COCO's ERT, the evaluations spent over all trials (a
   successful trial counts its evaluations to the target, an unsuccessful one all it used)
@@ -41,47 +35,15 @@ import math
 import numpy as np
 import pandas as pd
 
-TARGETS = (1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6)
-"""Targets of the normalised gap for the runtime statistics (evaluations to each target,
-ERT, ECDFs); target t: a share ``1 - t`` of the possible improvement made."""
+# defined where the score runs are made; the analysis reads them from there
+from formation_bench.experiments.gaps import TARGET_GAP as TARGET_GAP
+from formation_bench.experiments.gaps import TARGETS as TARGETS
+from formation_bench.experiments.gaps import evaluations_to_target as evaluations_to_target
+from formation_bench.experiments.gaps import normalised_gap as normalised_gap
+from formation_bench.experiments.gaps import relative_gap as relative_gap
+
 SUCCESS_TARGETS = (1e-2, 1e-3, 1e-4)
 """Targets of the normalised gap at which success rates are reported."""
-TARGET_GAP = "normalised gap (f - J*) / (f_warm - J*)"
-"""The gap every target refers to, as the outputs name it."""
-
-
-def relative_gap(cost: np.ndarray | float, j_star: np.ndarray | float) -> np.ndarray:
-    """``(cost - J*) / |J*|``: 0 at the best-known cost, negative below it."""
-    j_star = np.asarray(j_star, dtype=np.float64)
-    return (np.asarray(cost, dtype=np.float64) - j_star) / np.abs(j_star)
-
-
-def normalised_gap(
-    cost: np.ndarray | float, j_star: np.ndarray | float, warm_cost: np.ndarray | float
-) -> np.ndarray:
-    """``(cost - J*) / (warm_cost - J*)``: 1 at the warm start's cost, 0 at ``J*``, negative
-    below it; NaN where the warm start is not above ``J*`` (nothing to improve). The
-    library's :meth:`Instance.normalised_gap` is the same, and NaN on every degenerate
-    instance."""
-    j_star = np.asarray(j_star, dtype=np.float64)
-    span = np.asarray(warm_cost, dtype=np.float64) - j_star
-    cost = np.asarray(cost, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(span > 0, (cost - j_star) / np.where(span > 0, span, 1.0), np.nan)
-
-
-def evaluations_to_target(
-    history_nfev: np.ndarray,
-    history_fun: np.ndarray,
-    j_star: float,
-    warm_cost: float,
-    target: float,
-) -> float:
-    """Evaluations after which the best cost so far first had a normalised gap <= ``target``;
-    NaN if the solve never reached it, or the gap is not defined (warm start not above
-    ``J*``). ``history_*`` are the solve's best-so-far trace."""
-    reached = np.flatnonzero(normalised_gap(history_fun, j_star, warm_cost) <= target)
-    return float(np.asarray(history_nfev)[reached[0]]) if reached.size else math.nan
 
 
 def _weights(weights: np.ndarray | None, size: int) -> np.ndarray:

@@ -7,7 +7,7 @@ registered name and overrides (:func:`scenario_columns`), never from its label, 
 results folder that varies these gets the section, whatever the suite is called. A section
 tabulates a few metrics against its *condition* (N and graph; the disturbance level; the
 penalties) with the median and the bootstrap 95 % CI of the median over the seeds, and carries
-the report's statistics (:func:`~formation_bench.analysis.report.analyse`):
+the report's statistics (:func:`~formation_bench.analysis.comparison.analyse`):
 
 - every condition against its baseline condition (the complete graph at the same N; the
   nominal scenario; the penalties off), same optimiser, trigger and budget, paired by seed:
@@ -24,7 +24,6 @@ trigger, budget, optimiser and metric) and the figures, and returns the Markdown
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from collections.abc import Callable
@@ -34,16 +33,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from formation_bench.analysis.report import (
-    SIGNIFICANCE,
-    _num,
-    _p,
-    _save,
-    analyse,
-    prepare,
-)
-from formation_bench.mpc.scenario import CommunicationGraph, Scenario, get_scenario
-from formation_bench.pipeline.spec import from_json_value
+from formation_bench.analysis.cells import number_cell, p_cell
+from formation_bench.analysis.comparison import analyse, prepare
+from formation_bench.analysis.stats import SIGNIFICANCE
+from formation_bench.mpc.metrics import Better, metric_of
+from formation_bench.mpc.scenario import CommunicationGraph, Scenario
+from formation_bench.pipeline.record import STORED_CONFIGURATION_COLUMNS, stored_scenario
 
 SWARM_METRICS = (
     "tracking_error_max_m",
@@ -68,9 +63,6 @@ OBSTACLE_METRICS = (
     "tracking_error_max_m",
     "distance_error_rms_m",
 )
-HIGHER_IS_BETTER = frozenset({"min_separation_m"})
-"""Metrics whose lowest value (rank 1) is the worst; every other one here is best lowest."""
-
 HEADINGS = {"n_uav": "N", "scenario": "level", "scenario_name": "scenario"}
 """Column headings of the Markdown tables, where the column's name is not one."""
 
@@ -95,28 +87,44 @@ class Family:
 FAMILIES = (
     Family(
         "wind",
-        lambda s: s.gust_std_m_s > 0 or any(w != 0 for w in s.wind_mean_m_s),
-        lambda s: (math.hypot(*s.wind_mean_m_s), s.gust_std_m_s),
+        lambda s: (
+            s.disturbances.gust_std_m_s > 0 or any(w != 0 for w in s.disturbances.wind_mean_m_s)
+        ),
+        lambda s: (math.hypot(*s.disturbances.wind_mean_m_s), s.disturbances.gust_std_m_s),
     ),
     Family(
         "noise",
-        lambda s: max(s.position_noise_std_m, s.heading_noise_std_rad, s.speed_noise_std_m_s) > 0,
-        lambda s: (s.position_noise_std_m, s.heading_noise_std_rad, s.speed_noise_std_m_s),
+        lambda s: max(
+            s.disturbances.position_noise_std_m,
+            s.disturbances.heading_noise_std_rad,
+            s.disturbances.speed_noise_std_m_s,
+        )
+        > 0,
+        lambda s: (
+            s.disturbances.position_noise_std_m,
+            s.disturbances.heading_noise_std_rad,
+            s.disturbances.speed_noise_std_m_s,
+        ),
     ),
     Family(
         "packet loss",
-        lambda s: s.packet_loss > 0,
-        lambda s: (s.packet_loss, s.loss_correlation),
+        lambda s: s.communication.packet_loss > 0,
+        lambda s: (s.communication.packet_loss, s.communication.loss_correlation),
     ),
     Family(
         "delay",
-        lambda s: s.delay_steps > 0 or s.delay_jitter_steps > 0,
-        lambda s: (s.delay_steps, s.delay_jitter_steps),
+        lambda s: s.communication.delay_steps > 0 or s.communication.delay_jitter_steps > 0,
+        lambda s: (s.communication.delay_steps, s.communication.delay_jitter_steps),
     ),
     Family(
         "mismatch",
-        lambda s: s.plant_accel_gain != 1.0 or s.plant_turn_rate_gain != 1.0,
-        lambda s: (abs(1.0 - s.plant_accel_gain), abs(1.0 - s.plant_turn_rate_gain)),
+        lambda s: (
+            s.disturbances.plant_accel_gain != 1.0 or s.disturbances.plant_turn_rate_gain != 1.0
+        ),
+        lambda s: (
+            abs(1.0 - s.disturbances.plant_accel_gain),
+            abs(1.0 - s.disturbances.plant_turn_rate_gain),
+        ),
     ),
 )
 """The disturbance and fault families of the robustness section, in its order."""
@@ -124,19 +132,19 @@ FAMILIES = (
 
 def graph_label(scenario: Scenario) -> str:
     """``complete``, ``ring``, ``3-nearest`` or ``range 35 m``."""
-    if scenario.graph == CommunicationGraph.K_NEAREST:
-        return f"{scenario.graph_neighbours}-nearest"
-    if scenario.graph == CommunicationGraph.RANGE:
-        return f"range {scenario.graph_range_m:g} m"
-    return str(scenario.graph)
+    if scenario.communication.graph == CommunicationGraph.K_NEAREST:
+        return f"{scenario.communication.graph_neighbours}-nearest"
+    if scenario.communication.graph == CommunicationGraph.RANGE:
+        return f"range {scenario.communication.graph_range_m:g} m"
+    return str(scenario.communication.graph)
 
 
 def penalties_label(scenario: Scenario) -> str:
     """Which penalties act in the local cost: ``obstacle``, ``collision``, both, or ``off``."""
     parts = []
-    if scenario.w_obstacle > 0 and scenario.obstacles:
+    if scenario.safety.w_obstacle > 0 and scenario.safety.obstacles:
         parts.append("obstacle")
-    if scenario.w_collision > 0:
+    if scenario.safety.w_collision > 0:
         parts.append("collision")
     return " + ".join(parts) or PENALTIES_OFF
 
@@ -159,8 +167,8 @@ def _describe(scenario: Scenario) -> dict[str, object]:
         "family_index": family_index,
         "severity": severity,
         "penalties": penalties_label(scenario),
-        "obstacles": len(scenario.obstacles),
-        "safety_radius_m": scenario.safety_radius_m,
+        "obstacles": len(scenario.safety.obstacles),
+        "safety_radius_m": scenario.safety.safety_radius_m,
     }
 
 
@@ -169,20 +177,17 @@ def scenario_columns(results: pd.DataFrame) -> pd.DataFrame:
     :data:`FAMILIES`, ``nominal`` or several joined by ``+``), ``penalties``, ``obstacles``,
     ``safety_radius_m``, and ``level_order`` (levels sorted by family, then severity).
 
-    A scenario that is not registered here (a plugin not loaded) leaves its rows' columns
-    empty, and they are in no section."""
+    Each run's scenario is the one its row records (:func:`~formation_bench.pipeline.record.
+    stored_scenario`), not today's registry's; a row whose scenario cannot be rebuilt here
+    (a plugin's class not loaded, say) leaves its columns empty, and it is in no section."""
+    key_columns = [c for c in STORED_CONFIGURATION_COLUMNS if c in results]
+    # keys as text: a missing value (NaN) is then equal to itself
+    keys = list(results[key_columns].astype(str).itertuples(index=False, name=None))
     described = {}
-    for name, overrides in (
-        results[["scenario_name", "scenario_overrides"]]
-        .drop_duplicates(ignore_index=True)
-        .itertuples(index=False)
-    ):
-        fields = from_json_value(json.loads(overrides)) if overrides else {}
-        try:
-            described[name, overrides] = _describe(get_scenario(name, **fields))
-        except (KeyError, ValueError, TypeError):
-            continue
-    keys = list(zip(results["scenario_name"], results["scenario_overrides"], strict=True))
+    for key, row in zip(keys, results[key_columns].to_dict("records"), strict=True):
+        if key not in described:
+            scenario = stored_scenario(row)
+            described[key] = {} if scenario is None else _describe(scenario)
     info = pd.DataFrame([described.get(key, {}) for key in keys], index=results.index)
     frame = pd.concat([results, info], axis=1)
     if "family" in frame:
@@ -272,7 +277,10 @@ def _is_true(value: object) -> bool:
 def _cell(row: pd.Series, *, versus: bool) -> str:
     if not row["n"]:
         return "–"
-    text = f"{_num(row['median'])} [{_num(row['ci_low'])}, {_num(row['ci_high'])}]"
+    text = (
+        f"{number_cell(row['median'])} "
+        f"[{number_cell(row['ci_low'])}, {number_cell(row['ci_high'])}]"
+    )
     if row["n"] < row["seeds"]:  # some runs have no value (e.g. never settled)
         text += f" (n {row['n']})"
     if versus and pd.notna(row.get("condition_a12")):
@@ -323,7 +331,7 @@ def _grid(
 def _friedman_cell(group: pd.DataFrame) -> str:
     if "friedman_p" not in group or group["friedman_p"].isna().all():
         return "–"
-    return _p(float(group["friedman_p"].dropna().iloc[0]))
+    return p_cell(float(group["friedman_p"].dropna().iloc[0]))
 
 
 def _varying(table: pd.DataFrame, columns: tuple[str, ...] = ("trigger", "budget")) -> list[str]:
@@ -347,7 +355,9 @@ def power_note(table: pd.DataFrame) -> str:
 
 
 def _rank_text(condition: str, metric: str, baseline: str) -> str:
-    worst = " (the worst here: a higher separation is better)" if metric in HIGHER_IS_BETTER else ""
+    info = metric_of(metric)
+    higher = info is not None and info.better is Better.HIGHER
+    worst = " (the worst here: a higher separation is better)" if higher else ""
     return (
         f"Optimiser ranks on `{metric}`: within each {condition}, each optimiser's average "
         f"Friedman rank over the seeds all of them ran, 1 = lowest value{worst}; Friedman p: "
@@ -626,9 +636,9 @@ def write_sections(results: pd.DataFrame, folder: Path, *, figures: bool = True)
         )
         texts.append(section.markdown)
         if figures:
-            import matplotlib.pyplot as plt
+            from formation_bench.analysis.figures import save_report_figure
 
             (folder / "figures").mkdir(parents=True, exist_ok=True)
             for stem, figure in section_figures(section).items():
-                _save(figure, folder / "figures" / f"{stem}.png", plt)
+                save_report_figure(figure, folder / "figures" / f"{stem}.png")
     return "\n\n".join(texts)

@@ -14,7 +14,9 @@ from __future__ import annotations
 import pandas as pd
 
 from formation_bench.analysis import stats
-from formation_bench.analysis.report import HEADLINE_METRICS, _num, _p, prepare
+from formation_bench.analysis.cells import number_cell, p_cell
+from formation_bench.analysis.comparison import prepare
+from formation_bench.mpc.metrics import headline_metrics
 
 VARIANT_SUFFIXES = ("-warm",)
 """Name endings of the variants compared with the configuration they vary."""
@@ -33,9 +35,11 @@ def variant_pairs(levels: list[str], suffixes: tuple[str, ...] = VARIANT_SUFFIXE
     ]
 
 
-def pair_table(results: pd.DataFrame, metrics: tuple[str, ...] = HEADLINE_METRICS) -> pd.DataFrame:
-    """One row per block, metric and (variant, base) pair; empty when no pair applies."""
+def pair_table(results: pd.DataFrame, metrics: tuple[str, ...] | None = None) -> pd.DataFrame:
+    """One row per block, metric (``metrics``, by default the headline ones) and (variant,
+    base) pair; empty when no pair applies."""
     frame = prepare(results)
+    metrics = headline_metrics() if metrics is None else metrics
     metrics = tuple(m for m in metrics if m in frame)
     rows = []
     for block_values, block in frame.groupby(BLOCK, sort=False):
@@ -89,9 +93,10 @@ def to_markdown(table: pd.DataFrame) -> str:
         for row in rows.itertuples():
             mark = "*" if row.significant else ""
             lines.append(
-                f"| {row.variant} | {row.base} | {row.n_pairs} | {_num(row.variant_median)} "
-                f"| {_num(row.base_median)} | {_num(row.median_difference)} "
-                f"| {_p(row.p_holm)}{mark} | {row.a12:.2f} |"
+                f"| {row.variant} | {row.base} | {row.n_pairs} "
+                f"| {number_cell(row.variant_median)} | {number_cell(row.base_median)} "
+                f"| {number_cell(row.median_difference)} | {p_cell(row.p_holm)}{mark} "
+                f"| {row.a12:.2f} |"
             )
         lines.append("")
     return "\n".join(lines).rstrip() + "\n"

@@ -7,11 +7,9 @@ error naming it and what is allowed, exit code 2, no traceback.
 from __future__ import annotations
 
 import argparse
-import ast
 import contextlib
 import dataclasses
 import os
-import re
 import signal
 import sys
 import threading
@@ -30,12 +28,24 @@ from formation_bench.analysis.paper import (
     format_seed_table,
     format_table,
 )
+from formation_bench.cli.common import (
+    UsageError,
+    assignment,
+    deadline_ms,
+    error_message,
+    non_negative_int,
+    parse_value,
+    positive_int,
+    requested_budget,
+    seed,
+    set_error,
+)
+from formation_bench.cli.sweep_commands import add_sweep_commands
 from formation_bench.mpc.loop import ProgressCallback
 from formation_bench.mpc.reference import REFERENCE_PATHS
 from formation_bench.mpc.scenario import SCENARIOS, Scenario, get_scenario
 from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
 from formation_bench.pipeline.checks import (
-    MAX_SEED,
     LimitError,
     check_jobs,
     check_out_path,
@@ -44,14 +54,8 @@ from formation_bench.pipeline.checks import (
 )
 from formation_bench.pipeline.interrupts import is_interrupt
 from formation_bench.pipeline.outputs import write_metrics, write_text, write_trace
-from formation_bench.pipeline.runner import (
-    RunOutcome,
-    execute,
-    kernels_cached,
-    write_figures,
-    write_trigger_figure,
-)
-from formation_bench.pipeline.spec import RunSpec, with_deadline
+from formation_bench.pipeline.runner import RunOutcome, execute, kernels_cached
+from formation_bench.pipeline.spec import RunSpec, flat_fields, solve_budget
 from formation_bench.pipeline.staging import OutputError, staged_folder
 
 DEFAULT_OPTIMIZER = "modified-bso"
@@ -69,35 +73,9 @@ examples:
 """
 
 
-class UsageError(Exception):
-    """A problem with what the user asked for (reported in one line, exit 2)."""
-
-
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message}\n")
-
-
-def parse_value(text: str) -> Any:
-    """A ``--set`` value: a Python literal (number, bool, tuple, ...) or else the plain string."""
-    lowered = text.strip().lower()
-    if lowered in ("true", "false"):
-        return lowered == "true"
-    try:
-        return ast.literal_eval(text)
-    except (ValueError, SyntaxError):
-        return text
-
-
-def _assignment(assignment: str) -> tuple[str, str, str, str]:
-    """``[TARGET.]FIELD=VALUE`` as ``(name as written, target or '', field, raw value)``."""
-    name, sep, raw = assignment.partition("=")
-    if not sep or not name:
-        raise UsageError(f"--set expects FIELD=VALUE, got {assignment!r}")
-    target, dot, field = name.partition(".")
-    if not dot:
-        target, field = "", name
-    return name, target, field, raw
 
 
 def split_overrides(
@@ -108,12 +86,12 @@ def split_overrides(
     ``scenario.FIELD`` and ``optimizer.FIELD`` say where explicitly; a bare
     field goes to whichever has it.
     """
-    scenario_fields = {f.name for f in dataclasses.fields(scenario)}
-    optimizer_fields = {f.name for f in dataclasses.fields(optimizer)}  # type: ignore[arg-type]
+    scenario_fields = set(flat_fields(scenario))
+    optimizer_fields = set(flat_fields(optimizer))
     to_scenario: dict[str, Any] = {}
     to_optimizer: dict[str, Any] = {}
-    for assignment in assignments:
-        name, target, field, raw = _assignment(assignment)
+    for text in assignments:
+        name, target, field, raw = assignment(text)
         if target not in ("", "scenario", "optimizer"):
             raise UsageError(f"--set {name}: prefix must be 'scenario.' or 'optimizer.'")
         in_scenario, in_optimizer = field in scenario_fields, field in optimizer_fields
@@ -154,57 +132,7 @@ def _build(args: argparse.Namespace) -> tuple[Scenario, Optimizer]:
             get_optimizer(args.optimizer, **to_optimizer),
         )
     except (ValueError, TypeError, KeyError) as err:
-        raise UsageError(_set_error(_message(err), args.set or [])) from None
-
-
-def configured_optimizer(name: str, assignments: list[str]) -> tuple[Optimizer, dict[str, Any]]:
-    """The registered optimizer ``name`` with ``--set FIELD=VALUE`` overrides of its own
-    fields (for commands without a scenario); returns it and the overrides."""
-    if name not in OPTIMIZERS:
-        allowed = ", ".join(sorted(OPTIMIZERS))
-        raise UsageError(f"--optimizer: unknown name {name!r}; allowed: {allowed}")
-    fields = sorted(f.name for f in dataclasses.fields(get_optimizer(name)))  # type: ignore[arg-type]
-    listed = ", ".join(fields) or "none"
-    to_optimizer: dict[str, Any] = {}
-    for assignment in assignments:
-        written, target, field, raw = _assignment(assignment)
-        if target not in ("", "optimizer"):
-            raise UsageError(
-                f"--set {written}: only fields of optimizer {name!r} apply here (this command "
-                f"has no scenario); its fields: {listed}"
-            )
-        if field not in fields:
-            raise UsageError(
-                f"--set {written}: unknown field of optimizer {name!r}; its fields: {listed}"
-            )
-        to_optimizer[field] = parse_value(raw)
-    try:
-        return get_optimizer(name, **to_optimizer), to_optimizer
-    except (ValueError, TypeError, KeyError) as err:
-        raise UsageError(_set_error(_message(err), assignments)) from None
-
-
-def _message(err: BaseException) -> str:
-    return str(err.args[0]) if err.args else str(err)
-
-
-# a field check says "Class.field must be ..., got ..."
-_FIELD_ERROR = re.compile(r"(?P<cls>\w+)\.(?P<field>\w+) must be (?P<rest>.*)", re.DOTALL)
-
-
-def _set_error(message: str, assignments: list[str]) -> str:
-    """A field's error named as the user wrote it: ``--set FIELD: expected ..., got ...``."""
-    match = _FIELD_ERROR.fullmatch(message)
-    if match is None:
-        return f"--set: {message}"
-    field = match["field"]
-    kind = "scenario" if match["cls"] == "Scenario" else "optimizer"
-    written = field
-    for assignment in assignments:
-        name = assignment.partition("=")[0].strip()
-        if name in (field, f"{kind}.{field}"):
-            written = name
-    return f"--set {written}: expected {match['rest']}"
+        raise UsageError(set_error(error_message(err), args.set or [])) from None
 
 
 def _summary(record: dict[str, Any]) -> str:
@@ -255,7 +183,7 @@ def cmd_list(args: argparse.Namespace) -> int:
     for name, scenario in sorted(SCENARIOS.items()):
         print(
             f"  {name:<36} {scenario.n_uav} UAVs, reference '{scenario.reference}', "
-            f"{scenario.n_steps} instants of {scenario.period_s:g} s"
+            f"{scenario.timing.n_steps} instants of {scenario.timing.period_s:g} s"
         )
     print("reference paths: " + ", ".join(sorted(REFERENCE_PATHS)))
     return 0
@@ -273,10 +201,20 @@ def _list_fields(name: str) -> int:
         allowed = ", ".join([*sorted(OPTIMIZERS), *sorted(SCENARIOS)])
         raise UsageError(f"--fields: unknown optimizer or scenario {name!r}; allowed: {allowed}")
     print(f"{kind} {name} ({type(obj).__name__}); set with --set {kind}.FIELD=VALUE")
+    _print_fields(obj, describe_fields)
+    return 0
+
+
+def _print_fields(obj: Any, describe_fields: Any) -> None:
+    """Each setting of ``obj``; a group of settings (a field holding a config dataclass) as
+    its settings, set by their own names."""
     for info in describe_fields(obj):
+        if dataclasses.is_dataclass(info.value) and not isinstance(info.value, type):
+            print(f"  [{info.name}] {info.doc}")
+            _print_fields(info.value, describe_fields)
+            continue
         print(f"  {info.name} = {_shown(info.value)}  ({info.type}; {info.allowed})")
         print(f"      {info.doc}")
-    return 0
 
 
 def _shown(value: Any) -> str:
@@ -287,35 +225,31 @@ def _shown(value: Any) -> str:
     return repr(value)
 
 
-def _budget(args: argparse.Namespace) -> Budget | None:
-    if args.max_evaluations is None and args.max_iterations is None:
-        return None
-    try:
-        return Budget(args.max_evaluations, args.max_iterations)
-    except ValueError as err:
-        raise UsageError(_message(err)) from None
-
-
 def cmd_run(args: argparse.Namespace) -> int:
     scenario, optimizer = _build(args)
-    budget = _budget(args)
-    _check(scenario, optimizer, with_deadline(budget, args.deadline_ms, optimizer))
+    budget = requested_budget(args.max_evaluations, args.max_iterations, args.deadline_ms)
+    _check(scenario, optimizer, solve_budget(budget, optimizer))
     spec = RunSpec.of(
         args.optimizer, optimizer, args.scenario, scenario,
-        trigger=args.trigger, seed=args.seed, budget=budget, deadline_ms=args.deadline_ms,
-        plugins=plugins.loaded_plugins(),
+        trigger=args.trigger, seed=args.seed, budget=budget, plugins=plugins.loaded_plugins(),
     )  # fmt: skip
     with _staged(args) as out:
         _compile_notice()
-        with _progress_bar(spec.optimizer_label, scenario.n_steps, args.progress) as progress:
+        with _progress_bar(
+            spec.optimizer_label, scenario.timing.n_steps, args.progress
+        ) as progress:
             outcome = execute(spec, progress=progress)
         record = outcome.record.to_json()
         write_metrics(out / "metrics.json", [record])
         write_trace(out / "trace.parquet", outcome.table)
         if args.figures:
+            from formation_bench.analysis import run_figures  # Matplotlib: only when drawing
+
             suffix = "trigger" if args.trigger else "no_trigger"
-            write_figures(outcome, out, suffix, (5, 6) if args.trigger else (3, 4))
-            write_trigger_figure(outcome, out, f"fig7_solve_instants_{suffix}.png")
+            numbers = (5, 6) if args.trigger else (3, 4)
+            frame, run_scenario = outcome.frame, outcome.trace.scenario
+            run_figures.write_run_figures(frame, run_scenario, out, suffix, numbers)
+            run_figures.write_trigger_figure(frame, out, f"fig7_solve_instants_{suffix}.png")
     print(_summary(record))
     print(f"wrote {args.out}/metrics.json, trace.parquet{' and figures' if args.figures else ''}")
     return 0
@@ -381,7 +315,7 @@ def reproduce_one(
             DEFAULT_OPTIMIZER, optimizer, "paper", scenario, trigger=trigger, seed=seed
         )
         label = f"seed {seed}, {'with' if trigger else 'without'} trigger"
-        with _progress_bar(label, scenario.n_steps, progress) as advance:
+        with _progress_bar(label, scenario.timing.n_steps, progress) as advance:
             outcome = execute(spec, progress=advance)
         outcomes.append(outcome)
         print(_summary(outcome.record.to_json()), flush=True)
@@ -391,9 +325,15 @@ def reproduce_one(
     write_metrics(out / "metrics.json", records)
     write_trace(out / "trace.parquet", pa.concat_tables([o.table for o in outcomes]))
     if figures:
-        write_figures(outcomes[0], out, "no_trigger", (3, 4))
-        write_figures(outcomes[1], out, "trigger", (5, 6))
-        write_trigger_figure(outcomes[1], out, "fig7_solve_instants.png")
+        from formation_bench.analysis import run_figures  # Matplotlib: only when drawing
+
+        for outcome, suffix, numbers in zip(
+            outcomes, ("no_trigger", "trigger"), ((3, 4), (5, 6)), strict=True
+        ):
+            run_figures.write_run_figures(
+                outcome.frame, outcome.trace.scenario, out, suffix, numbers
+            )
+        run_figures.write_trigger_figure(outcomes[1].frame, out, "fig7_solve_instants.png")
     return records
 
 
@@ -401,7 +341,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     out = Path(args.out)
     seeds = list(dict.fromkeys(args.seeds))
-    settle = get_scenario("paper").settle_time_s
+    settle = get_scenario("paper").evaluation.settle_time_s
     with _staged(args) as staging:
         _compile_notice()  # after the output checks, so a refused command prints one line
         runs = {
@@ -491,7 +431,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--seed",
         "--seeds",
         dest="seeds",
-        type=_seed,
+        type=seed,
         nargs="+",
         default=[0],
         help="run seed(s), integers >= 0 (default 0); several seeds write DIR/seedN/ each "
@@ -511,7 +451,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=True,
         help="use the event trigger (default) or solve at every instant",
     )
-    run.add_argument("--seed", type=_seed, default=0, help="run seed, integer >= 0 (default 0)")
+    run.add_argument("--seed", type=seed, default=0, help="run seed, integer >= 0 (default 0)")
     run.add_argument(
         "--set",
         action="append",
@@ -521,22 +461,23 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--max-evaluations",
-        type=_positive,
+        type=positive_int,
         metavar="N",
         help="per-solve evaluation budget (default: the optimizer's own budget)",
     )
     run.add_argument(
         "--max-iterations",
-        type=_non_negative,
+        type=non_negative_int,
         metavar="N",
         help="per-solve iteration budget (default: the optimizer's own budget)",
     )
     run.add_argument(
         "--deadline-ms",
-        type=_deadline,
+        type=deadline_ms,
         metavar="MS",
         help="per-solve wall-clock deadline in milliseconds: a solve returns its best point "
-        "so far when it passes (results then depend on the machine's speed)",
+        "so far when it passes (results then depend on the machine's speed); without "
+        "--max-evaluations or --max-iterations it caps the optimizer's own budget",
     )
     run.add_argument("--out", required=True, help="output folder")
     add_output_options(run)
@@ -550,50 +491,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     listing.set_defaults(func=cmd_list)
 
-    from formation_bench.cli.sweep_commands import add_sweep_commands  # sweep, report
-
     add_sweep_commands(sub)
     return parser
-
-
-def _integer(text: str, low: int) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}") from None
-    if value < low:
-        raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {value}")
-    return value
-
-
-def _positive(text: str) -> int:
-    return _integer(text, 1)
-
-
-def _non_negative(text: str) -> int:
-    return _integer(text, 0)
-
-
-def _deadline(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"must be a number of milliseconds > 0, got {text!r}"
-        ) from None
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a number of milliseconds > 0, got {text}")
-    return value
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
-    if not 0 <= value <= MAX_SEED:
-        raise argparse.ArgumentTypeError(f"must be an integer in [0, 2**128 - 1], got {value}")
-    return value
 
 
 STAGED_OUTPUT_COMMANDS = ("run", "reproduce", "report", "export-ioh")

@@ -1,4 +1,4 @@
-"""The ``sweep`` and ``report`` subcommands of ``formation-bench``.
+"""The ``sweep``, ``score``, ``report`` and ``export-ioh`` subcommands of ``formation-bench``.
 
 Errors follow the rest of the command line: one line naming the field and the
 allowed values, exit code 2, no traceback.
@@ -13,7 +13,13 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from formation_bench.cli.main import _deadline, _seed, configured_optimizer
+from formation_bench.cli.common import (
+    configured_optimizer,
+    deadline_ms,
+    positive_int,
+    requested_budget,
+    seed,
+)
 from formation_bench.experiments.errors import StoreError, SweepError
 from formation_bench.experiments.executors import DEFAULT_WORKER_TIMEOUT_S
 from formation_bench.experiments.suite import (
@@ -30,6 +36,7 @@ from formation_bench.pipeline.checks import (
     check_scheduler_address,
 )
 from formation_bench.pipeline.interrupts import is_interrupt
+from formation_bench.pipeline.spec import solve_budget
 from formation_bench.pipeline.staging import (
     OutputError,
     check_output_folder,
@@ -142,23 +149,26 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return summary.exit_code
 
 
-def _score_budget(text: str) -> tuple[int | None, int | None]:
-    if text == "default":
-        return (None, None)
+DEFAULT_BUDGET = "default"
+"""A ``score --budgets`` value: the optimizer's own budget."""
+
+
+def _score_budget(text: str) -> int | None:
+    """A ``score --budgets`` value: evaluations per solve, or None for ``default``."""
+    if text == DEFAULT_BUDGET:
+        return None
     try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
+        return positive_int(text)
+    except argparse.ArgumentTypeError:
         raise argparse.ArgumentTypeError(
-            f"must be 'default' or a number of evaluations >= 1, got {text!r}"
-        )
-    return (value, None)
+            f"must be '{DEFAULT_BUDGET}' or a number of evaluations >= 1, got {text!r}"
+        ) from None
 
 
 def cmd_score(args: argparse.Namespace) -> int:
     from formation_bench.experiments.score import (
         ScoreError,
+        ScoreRunsFailed,
         run_scores,
         score_runs,
         stored_keys,
@@ -172,14 +182,17 @@ def cmd_score(args: argparse.Namespace) -> int:
     except OutputError as err:
         raise SweepError(str(err)) from None
     _, overrides = configured_optimizer(args.optimizer, args.set or [])
+    budgets = [
+        requested_budget(evaluations, None, args.deadline_ms)
+        for evaluations in dict.fromkeys(args.budgets)
+    ]
     try:
         library = shipped() if args.library is None else load_shipped(args.library)
         runs = score_runs(
             args.optimizer,
             overrides,
-            list(dict.fromkeys(args.budgets)),
+            budgets,
             list(dict.fromkeys(args.seeds)),
-            deadline_ms=args.deadline_ms,
             library=library,
             split=args.split,
             plugins=loaded_plugins(),
@@ -189,21 +202,29 @@ def cmd_score(args: argparse.Namespace) -> int:
     except ScoreError as err:
         raise SweepError(str(err)) from None
     optimizer = runs[0].optimizer()
-    for run in {run.budget_label: run for run in runs}.values():  # each budget once
-        check_optimizer(optimizer, run.budget(optimizer))  # the limits run and sweep apply
+    for budget in budgets:
+        check_optimizer(optimizer, solve_budget(budget, optimizer))  # as run and sweep do
     start = time.perf_counter()
     done = 0
     try:
         for run in run_scores(runs, out, jobs=args.jobs):
             done += 1
-            print(
-                f"  stored {run.optimizer_label} / {run.budget_label} / seed {run.seed}", flush=True
-            )
+            print(f"  stored {run.describe()}", flush=True)
+    except ScoreRunsFailed as failures:
+        for run, error in failures.failed:
+            last = error.strip().splitlines()[-1] if error.strip() else "no error text"
+            print(f"failed: {run.describe()}: {last}", file=sys.stderr)
+        print(
+            f"{len(runs) - len(failures.failed)} of {len(runs)} score runs stored in "
+            f"{out / 'score'}; {len(failures.failed)} failed",
+            file=sys.stderr,
+        )
+        return 1
     except OSError as err:
         problem = storage_problem(err, where=out / "score")
         if problem is None:
             raise
-        kept = len(stored_keys(out) & {run.key for run in runs})  # counted from the folder
+        kept = len(stored_keys(out, runs))  # counted from the folder
         raise SweepError(
             f"--out: {problem}; {kept} of {len(runs)} score runs stored in {out / 'score'} and "
             f"intact; {storage_advice(err)}"
@@ -385,13 +406,17 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         "--budgets",
         nargs="+",
         type=_score_budget,
-        default=[(None, None)],
+        default=[None],
         metavar="B",
         help="per-solve budgets: 'default' (the optimizer's own) or evaluations (default: default)",
     )
-    score.add_argument("--seeds", nargs="+", type=_seed, default=[0], help="seeds (default 0)")
+    score.add_argument("--seeds", nargs="+", type=seed, default=[0], help="seeds (default 0)")
     score.add_argument(
-        "--deadline-ms", type=_deadline, metavar="MS", help="per-solve wall-clock deadline"
+        "--deadline-ms",
+        type=deadline_ms,
+        metavar="MS",
+        help="per-solve wall-clock deadline in milliseconds, at every budget (a 'default' "
+        "budget keeps the optimizer's own limits under it)",
     )
     score.add_argument(
         "--library",

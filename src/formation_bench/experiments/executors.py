@@ -1,8 +1,14 @@
-"""Where a sweep's runs are computed: :func:`execute_run` carries out one run in a worker,
-:func:`run_locally` and :func:`run_on_dask` yield the results of many in completion order, from
-local loky worker processes or a Dask cluster. Workers only compute and send back each run's
-row (and trace); the sweep process (:mod:`~formation_bench.experiments.sweep`)
-alone stores them.
+"""Where runs are computed: :func:`execute_run` carries out one closed-loop run of a sweep in a
+worker, :func:`run_locally` and :func:`run_on_dask` yield the results of many in completion
+order, from local loky worker processes or a Dask cluster. Workers only compute and send back
+each run's row (and trace); the command's own process alone stores them
+(:mod:`~formation_bench.experiments.sweep`, :mod:`~formation_bench.experiments.score`).
+
+The executors take any run with a ``key`` and the module-level function that carries it out
+(``work``, :func:`execute_run` by default): a score run goes through them with
+:func:`~formation_bench.experiments.score.execute_score_run`. A work function wraps its
+computation in :func:`computed`, so that every run's thread pools and errors are handled
+alike.
 """
 
 from __future__ import annotations
@@ -14,9 +20,9 @@ import sys
 import time
 import traceback
 import warnings
-from collections.abc import Generator
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from formation_bench.experiments.errors import SweepError, SweepStopped
 from formation_bench.pipeline.interrupts import is_interrupt, started_deaf_to_interrupts
@@ -41,30 +47,61 @@ WORKER_CHECK_S = 5.0
 
 @dataclass
 class RunResult:
-    """What a worker sends back: the row to store, or the error of a failed run."""
+    """What a worker sends back: what to store, or the error of a failed run."""
 
     key: str
     row: dict[str, Any] | None
+    """A closed-loop run's row (None for a failed run, or a score run: see :attr:`rows`)."""
     trace: pd.DataFrame | None = None
+    """A closed-loop run's trace, when its suite keeps traces."""
     error: str | None = None
+    """The traceback of a failed run; None: it finished."""
+    rows: pd.DataFrame | None = None
+    """A score run's rows, one per instance solved."""
+
+    @property
+    def failed(self) -> bool:
+        return self.error is not None
 
 
-def execute_run(spec: RunSpec) -> RunResult:
-    """Carry out one run in a worker and return its row; errors are returned, not raised.
+class Keyed(Protocol):
+    """A run an executor can carry out: named by its key (the store's file name)."""
+
+    @property
+    def key(self) -> str: ...
+
+
+Work = Callable[[Any], RunResult]
+"""A module-level function that carries out one run in a worker (it is sent to the worker by
+name)."""
+
+
+def computed(key: str, compute: Callable[[], RunResult]) -> RunResult:
+    """``compute()`` with native thread pools at one thread (one run per worker process); an
+    error is returned in the result of run ``key``, not raised.
 
     An interrupt is raised, also when numba reports it as a ``SystemError`` (in-process runs
-    with one job): it stops the sweep rather than being stored as a failed run.
+    with one job): it stops the command rather than being stored as a failed run.
     """
     from threadpoolctl import threadpool_limits
 
     try:
         with threadpool_limits(limits=1):
-            outcome = execute(spec)
-        return RunResult(spec.key, outcome.record.row(), outcome.frame if spec.trace else None)
+            return compute()
     except Exception as err:
         if is_interrupt(err):
             raise
-        return RunResult(spec.key, None, error=traceback.format_exc())
+        return RunResult(key, None, error=traceback.format_exc())
+
+
+def execute_run(spec: RunSpec) -> RunResult:
+    """Carry out one closed-loop run in a worker and return its row (and trace)."""
+
+    def closed_loop() -> RunResult:
+        outcome = execute(spec)
+        return RunResult(spec.key, outcome.record.row(), outcome.frame if spec.trace else None)
+
+    return computed(spec.key, closed_loop)
 
 
 # --- executors ---------------------------------------------------------------------------------
@@ -76,11 +113,14 @@ DROPPED_RESULTS_WARNING = r"\d+ tasks have been successfully executed"
 """joblib's warning about finished tasks it drops when a sweep stops early."""
 
 
-def run_locally(specs: list[RunSpec], jobs: int) -> Generator[RunResult, None, None]:
-    """Results in completion order from ``jobs`` loky worker processes (in-process if 1)."""
+def run_locally(
+    specs: Sequence[Keyed], jobs: int, work: Work = execute_run
+) -> Generator[RunResult, None, None]:
+    """Results of ``work`` on every run of ``specs``, in completion order, from ``jobs`` loky
+    worker processes (in-process if 1)."""
     if jobs == 1:
         for spec in specs:
-            yield execute_run(spec)
+            yield work(spec)
         return
     from joblib import Parallel, delayed, parallel_config
 
@@ -97,15 +137,15 @@ def run_locally(specs: list[RunSpec], jobs: int) -> Generator[RunResult, None, N
             n_jobs=jobs, return_as="generator_unordered", batch_size=1, pre_dispatch="2*n_jobs"
         )
         with started_deaf_to_interrupts():  # the workers start here
-            results = parallel(delayed(_local_worker_run)(spec) for spec in specs)
+            results = parallel(delayed(_local_worker_run)(work, spec) for spec in specs)
         yield from results
 
 
 _PDEATHSIG_SET = False
 
 
-def _local_worker_run(spec: RunSpec) -> RunResult:
-    """:func:`execute_run` in a local worker that dies with the sweep process.
+def _local_worker_run(work: Work, spec: Keyed) -> RunResult:
+    """``work(spec)`` in a local worker that dies with the command's process.
 
     On Linux the worker asks the kernel for SIGKILL when its parent dies, so a
     sweep killed with SIGKILL leaves no worker computing or idling behind.
@@ -126,7 +166,7 @@ def _local_worker_run(spec: RunSpec) -> RunResult:
         except (OSError, AttributeError):
             pass
         _PDEATHSIG_SET = True
-    return execute_run(spec)
+    return work(spec)
 
 
 def connect_scheduler(address: str) -> Client:
@@ -172,9 +212,13 @@ def _live_workers(client: Client) -> int:
 
 
 def run_on_dask(
-    specs: list[RunSpec], client: Client, worker_timeout_s: float = DEFAULT_WORKER_TIMEOUT_S
+    specs: Sequence[Keyed],
+    client: Client,
+    worker_timeout_s: float = DEFAULT_WORKER_TIMEOUT_S,
+    work: Work = execute_run,
 ) -> Generator[RunResult, None, None]:
-    """Results in completion order from the Dask cluster of ``client``.
+    """Results of ``work`` on every run of ``specs``, in completion order, from the Dask
+    cluster of ``client``.
 
     Raises :class:`SweepStopped` when the scheduler has had no worker for
     ``worker_timeout_s``: the runs finished until then are all yielded first.
@@ -182,7 +226,7 @@ def run_on_dask(
     from dask.distributed import as_completed
 
     futures = client.map(
-        execute_run, specs, key=[f"formation-bench-run-{s.key}" for s in specs], pure=False
+        work, specs, key=[f"formation-bench-run-{s.key}" for s in specs], pure=False
     )
     spec_of = {f.key: s for f, s in zip(futures, specs, strict=True)}
     remaining = set(futures)

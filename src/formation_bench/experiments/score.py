@@ -1,50 +1,53 @@
 """Scoring an optimiser on the instance library: every instance solved, stored per run.
 
-A *score run* is one optimiser configuration at one budget with one seed, solving every
-instance of one split of the library (``test``, ``validation`` or ``all``; a library without
-splits, ``v1``, has ``all`` only) from its warm start, degenerate instances included. Its
-rows (one per instance: where it comes from, its content hash, family, phase, split, whether
-it is degenerate, ``J*`` and the warm start's cost; the final cost, the relative gap
-``(f - J*) / J*`` and the normalised gap ``(f - J*) / (f_warm - J*)``, evaluations,
-iterations, wall time, the evaluations to each target of the normalised gap, the
-improvements of the best cost so far and the point returned) are stored as
-``DIR/score/<key>.parquet``, written atomically when the run is complete and sealed like every
-file of the store (page checksums and a SHA-256 of the whole file naming the run's key; see
-:mod:`~formation_bench.experiments.store`), so an interrupted ``score`` resumes with
-the runs still missing, stored in another :data:`SCORE_FORMAT`, damaged, or stored before
-checksums were kept. :func:`load_scores` (what ``report`` and ``export-ioh`` read) leaves a
-damaged file out and names it on stderr.
-Runs go to local worker processes (joblib's loky backend). Instance ``k`` of a run draws its
-random numbers from ``SeedSequence([run entropy, k])``, so results do not depend on the worker
-count.
+A *score run* (:class:`ScoreRun`) is one optimiser configuration at one
+:class:`~formation_bench.optimizers.Budget` with one seed, solving every instance of one split
+of the library (``test``, ``validation`` or ``all``; a library without splits, ``v1``, has
+``all`` only) from its warm start, degenerate instances included. Its rows (one per instance:
+where it comes from, its content hash, family, phase, split, whether it is degenerate, ``J*``
+and the warm start's cost; the final cost, the relative gap ``(f - J*) / J*`` and the
+normalised gap ``(f - J*) / (f_warm - J*)``, evaluations, iterations, wall time, the
+evaluations to each target of the normalised gap, the improvements of the best cost so far
+and the point returned; and every setting of the optimiser that ran, with the hash of its
+configuration) are stored as ``DIR/score/<key>.parquet``.
+
+A score run goes through the machinery of a sweep: its key and random numbers derive from
+its identity (:class:`~formation_bench.pipeline.spec.Identified`), it is carried out by the
+sweep's executor (:func:`~formation_bench.experiments.executors.run_locally`, local worker
+processes, one thread each) and stored, sealed, by the sweep's store
+(:class:`~formation_bench.experiments.store.ResultStore`, which holds the folder's lock while
+``score`` writes). So an interrupted ``score`` resumes with the runs still missing, damaged,
+stored before checksums were kept, stored with columns that mean other things
+(:data:`SAME_MEANING_SCORE_FORMATS`) or of another configuration;
+:func:`load_scores` (what ``report`` and ``export-ioh`` read) leaves a damaged file out and
+names it on stderr. Instance ``k`` of a run draws its random numbers from
+``SeedSequence([run entropy, k])``, so results do not depend on the worker count.
 """
 
 from __future__ import annotations
 
-import hashlib
+import functools
 import json
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
 
-from formation_bench.analysis.scoring import (
+from formation_bench.experiments.errors import StoreError
+from formation_bench.experiments.executors import RunResult, computed, run_locally
+from formation_bench.experiments.gaps import (
     TARGETS,
     evaluations_to_target,
     normalised_gap,
+    target_column,
 )
-from formation_bench.experiments.errors import IntegrityError, StoreError
-from formation_bench.experiments.seal import (
-    read_table,
-    sealed_parquet,
-)
-from formation_bench.experiments.store import intact_frames, to_stderr
+from formation_bench.experiments.store import ResultStore, to_stderr
+from formation_bench.experiments.store import load_scores as load_stored_scores
 from formation_bench.instances.library import (
     Instance,
     Library,
@@ -53,25 +56,47 @@ from formation_bench.instances.library import (
     shipped,
 )
 from formation_bench.optimizers import Budget, Optimizer, get_optimizer
-from formation_bench.pipeline.outputs import atomic_write_bytes
+from formation_bench.pipeline.interrupts import interrupts_deferred
 from formation_bench.pipeline.spec import (
+    Identified,
+    budget_deadline_ms,
     budget_label,
+    budget_limits,
     canonical_json,
+    config_of,
     from_json_value,
     labelled,
-    resolved_budget,
+    resolved_config_hash,
+    solve_budget,
 )
 from formation_bench.plugins import load_plugins
 
-SCORE = "score"
-"""Subfolder of a results folder that holds score runs."""
 SCORE_FORMAT = 3
-"""Layout version of the score rows (column ``score_format``); bumped when the columns
-change, so a run stored in another layout is redone on resume. 2 added the improvement
-history and the point returned; 3 the run's split (``run_split``), the instance's content
-hash, family, phase, split, degeneracy and warm-start cost, the normalised gap, and the
-evaluations to targets of the normalised gap (``evals_to_norm_*``, where 2 had targets of the
-relative gap)."""
+"""What the score rows' columns mean, as a number (column ``score_format``): bumped only when
+a column changes meaning, so a run stored under another meaning is redone on resume; a column
+added alone changes nothing (a row stored before it reads it as empty). 2 added the
+improvement history and the point returned; 3 the run's split (``run_split``), the instance's
+content hash, family, phase, split, degeneracy and warm-start cost, the normalised gap, and
+the evaluations to targets of the normalised gap (``evals_to_norm_*``, where 2 had targets of
+the relative gap)."""
+SAME_MEANING_SCORE_FORMATS = frozenset({SCORE_FORMAT})
+"""Score formats whose columns mean what those of :data:`SCORE_FORMAT` mean."""
+DESCRIPTION_COLUMNS = (
+    "run_key",
+    "optimizer",
+    "optimizer_name",
+    "optimizer_overrides",
+    "budget",
+    "budget_max_evaluations",
+    "deadline_ms",
+    "seed",
+    "library",
+    "run_split",
+    "config_hash",
+    "optimizer_config",
+)
+"""The columns that say which score run a row belongs to (:meth:`ScoreRun.description`);
+``config_hash`` and ``optimizer_config`` are empty in rows stored before they were kept."""
 SPLITS = ("test", "validation", "all")
 """Splits a score run can solve: a split of the library, or ``all``, every instance."""
 DEFAULT_SPLIT = "test"
@@ -82,10 +107,12 @@ class ScoreError(ValueError):
     """A score run that cannot be made as asked (one line, naming the option)."""
 
 
-def target_column(target: float) -> str:
-    """Column of the evaluations to reach a normalised gap of ``target`` (e.g.
-    ``evals_to_norm_1e-03``)."""
-    return f"evals_to_norm_{target:.0e}"
+class ScoreRunsFailed(StoreError):
+    """Score runs that raised; the others are stored."""
+
+    def __init__(self, failed: list[tuple[ScoreRun, str]]) -> None:
+        self.failed = failed
+        super().__init__(f"{len(failed)} score run(s) failed")
 
 
 def resolved_split(library: Library, split: str | None) -> str:
@@ -110,17 +137,17 @@ def split_instances(library: Library, split: str) -> list[Instance]:
 
 
 @dataclass(frozen=True)
-class ScoreRun:
-    """One optimiser configuration at one budget with one seed, over the whole library."""
+class ScoreRun(Identified):
+    """One optimiser configuration at one budget with one seed, over one split of a library."""
+
+    ENTROPY_DOMAIN: ClassVar[bytes] = b"formation-bench score\0"
 
     optimizer_label: str
     optimizer_name: str
     optimizer_overrides: str
     """Canonical JSON of the fields changed from the registered configuration."""
-    max_evaluations: int | None
-    """Per-solve evaluation budget; None with ``max_iterations`` None: the optimiser's own."""
-    max_iterations: int | None
-    deadline_ms: float | None
+    budget: Budget | None
+    """Per-solve budget; None: the optimiser's own."""
     seed: int
     library_version: str
     split: str = "all"
@@ -129,18 +156,19 @@ class ScoreRun:
 
     @property
     def budget_label(self) -> str:
-        return budget_label(self.max_evaluations, self.max_iterations, self.deadline_ms)
+        return budget_label(self.budget)
 
     def identity(self) -> dict[str, Any]:
         """What the run's key and random numbers derive from. The split is part of it, but
         for ``all``, which leaves it out, so a run over a whole library keeps the key (and
         random numbers) it had before runs had splits, and is redone in place on resume."""
+        max_evaluations, max_iterations = budget_limits(self.budget)
         identity = {
             "optimizer": self.optimizer_name,
             "optimizer_overrides": json.loads(self.optimizer_overrides),
-            "max_evaluations": self.max_evaluations,
-            "max_iterations": self.max_iterations,
-            "deadline_ms": self.deadline_ms,
+            "max_evaluations": max_evaluations,
+            "max_iterations": max_iterations,
+            "deadline_ms": budget_deadline_ms(self.budget),
             "seed": self.seed,
             "library": self.library_version,
         }
@@ -149,40 +177,65 @@ class ScoreRun:
         return identity
 
     @property
-    def key(self) -> str:
-        return hashlib.sha256(canonical_json(self.identity()).encode()).hexdigest()[:24]
-
-    @property
     def entropy(self) -> int:
-        digest = hashlib.sha256(
-            b"formation-bench score\0" + canonical_json(self.identity()).encode()
-        )
-        return int.from_bytes(digest.digest()[:16], "big")
+        """Entropy of the run's random numbers (instance ``k``: ``[entropy, k]``)."""
+        return self.identity_entropy()
 
     def optimizer(self) -> Optimizer:
         return get_optimizer(
             self.optimizer_name, **from_json_value(json.loads(self.optimizer_overrides))
         )
 
-    def budget(self, optimizer: Optimizer) -> Budget | None:
-        return resolved_budget(
-            self.max_evaluations, self.max_iterations, self.deadline_ms, optimizer
-        )
+    def budget_for(self, optimizer: Optimizer) -> Budget | None:
+        """The per-solve budget of this run's ``optimizer``; None: the optimiser's own."""
+        return solve_budget(self.budget, optimizer)
+
+    @property
+    def config_hash(self) -> str:
+        """SHA-256 of the fully resolved optimiser and budget: a stored run whose hash differs
+        was made with other settings (changed code defaults) and is redone."""
+        return self.config_hash_of(self.optimizer())
+
+    def config_hash_of(self, optimizer: Optimizer) -> str:
+        """:attr:`config_hash`, of this run's ``optimizer`` (already built)."""
+        return resolved_config_hash(None, optimizer, self.budget_for(optimizer))
+
+    def describe(self) -> str:
+        return f"{self.optimizer_label} / {self.budget_label} / seed {self.seed}"
+
+    def description(self, optimizer: Optimizer) -> dict[str, Any]:
+        """The values of :data:`DESCRIPTION_COLUMNS` for a row of this run."""
+        max_evaluations, _ = budget_limits(self.budget)
+        deadline_ms = budget_deadline_ms(self.budget)
+        return {
+            "run_key": self.key,
+            "optimizer": self.optimizer_label,
+            "optimizer_name": self.optimizer_name,
+            "optimizer_overrides": self.optimizer_overrides,
+            "budget": self.budget_label,
+            "budget_max_evaluations": max_evaluations,
+            "deadline_ms": math.nan if deadline_ms is None else deadline_ms,
+            "seed": self.seed,
+            "library": self.library_version,
+            "run_split": self.split,
+            "config_hash": self.config_hash_of(optimizer),
+            "optimizer_config": canonical_json(config_of(optimizer)),
+        }
 
 
 def score_runs(
     optimizer_name: str,
     overrides: dict[str, Any],
-    budgets: list[tuple[int | None, int | None]],
-    seeds: list[int],
+    budgets: Sequence[Budget | None],
+    seeds: Sequence[int],
     *,
-    deadline_ms: float | None = None,
     library: Library | None = None,
     split: str | None = None,
     plugins: tuple[str, ...] = (),
 ) -> list[ScoreRun]:
-    """The score runs of one optimiser configuration at every budget and seed, over ``split``
-    of ``library`` (by default the shipped library and :func:`resolved_split`'s default)."""
+    """The score runs of one optimiser configuration at every budget (None: the optimiser's
+    own) and seed, over ``split`` of ``library`` (by default the shipped library and
+    :func:`resolved_split`'s default)."""
     library = shipped() if library is None else library
     split = resolved_split(library, split)
     configured = get_optimizer(optimizer_name, **overrides)
@@ -192,15 +245,13 @@ def score_runs(
             optimizer_label=label,
             optimizer_name=optimizer_name,
             optimizer_overrides=canonical_json(changed),
-            max_evaluations=max_evaluations,
-            max_iterations=max_iterations,
-            deadline_ms=deadline_ms,
+            budget=budget,
             seed=seed,
             library_version=library.version,
             split=split,
             plugins=plugins,
         )
-        for max_evaluations, max_iterations in budgets
+        for budget in budgets
         for seed in seeds
     ]
 
@@ -227,7 +278,7 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
     load_plugins(run.plugins)
     library = run_library(run, library)
     optimizer = run.optimizer()
-    budget = run.budget(optimizer)
+    budget = run.budget_for(optimizer)
     rows = []
     with threadpool_limits(limits=1):
         for instance in split_instances(library, run.split):
@@ -282,17 +333,16 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
     frame = pd.DataFrame(rows)
     if frame.empty:
         raise ScoreError(f"--split: library {run.library_version} has no {run.split} instances")
-    frame.insert(0, "run_key", run.key)
-    frame.insert(1, "optimizer", run.optimizer_label)
-    frame.insert(2, "optimizer_name", run.optimizer_name)
-    frame.insert(3, "optimizer_overrides", run.optimizer_overrides)
-    frame.insert(4, "budget", run.budget_label)
-    frame.insert(5, "budget_max_evaluations", pd.array([run.max_evaluations] * len(frame), "Int64"))
-    frame.insert(6, "deadline_ms", float("nan") if run.deadline_ms is None else run.deadline_ms)
-    frame.insert(7, "seed", run.seed)
-    frame.insert(8, "library", run.library_version)
-    frame.insert(9, "run_split", run.split)
+    description = run.description(optimizer)
+    for k, name in enumerate(DESCRIPTION_COLUMNS):
+        frame.insert(k, name, [description[name]] * len(frame))
+    frame["budget_max_evaluations"] = frame["budget_max_evaluations"].astype("Int64")
     return frame
+
+
+def execute_score_run(run: ScoreRun, library: Library | None = None) -> RunResult:
+    """Carry out one score run in a worker (an executor's ``work``): its rows, or its error."""
+    return computed(run.key, lambda: RunResult(run.key, None, rows=execute_score(run, library)))
 
 
 def _normalised(instance: Instance, cost: float) -> float:
@@ -311,59 +361,68 @@ def improvements(history_nfev: np.ndarray, history_fun: np.ndarray) -> tuple[lis
     return np.asarray(history_nfev)[keep].tolist(), fun[keep].tolist()
 
 
-def stored_keys(out: Path) -> set[str]:
-    """Keys of the runs stored whole, sealed, in the current :data:`SCORE_FORMAT`."""
-    folder = out / SCORE
-    if not folder.is_dir():
-        return set()
-    return {p.stem for p in folder.glob("*.parquet") if _stored_whole(p)}
+def is_stored(store: ResultStore, run: ScoreRun) -> bool:
+    """Whether ``run`` is stored whole, sealed, with columns of today's meaning and its
+    configuration (else resume redoes it)."""
+    status = store.score_status(
+        run.key, run.config_hash, SAME_MEANING_SCORE_FORMATS, "score_format"
+    )
+    return status.state == "done"
 
 
-def _stored_whole(path: Path) -> bool:
-    try:
-        table, seal = read_table(path, "score", path.stem, ["run_key", "score_format"])
-    except IntegrityError:  # damaged, or another run's file: redone
-        return False
-    # a file without a seal (stored before checksums were kept) is redone, and sealed
-    return seal is not None and set(table.column("score_format").to_pylist()) == {SCORE_FORMAT}
+def stored_keys(out: Path | str, runs: Sequence[ScoreRun] | None = None) -> set[str]:
+    """Keys of the score runs stored whole in ``out``: those of ``runs`` (each also of its
+    configuration), or of every score file (whole, sealed, with columns of today's meaning)."""
+    store = ResultStore(out)
+    if runs is not None:
+        return {run.key for run in runs if is_stored(store, run)}
+    return {
+        key
+        for key in store.score_keys()
+        if store.score_status(key, None, SAME_MEANING_SCORE_FORMATS, "score_format").state == "done"
+    }
 
 
-def write_score(out: Path, run: ScoreRun, frame: pd.DataFrame) -> Path:
-    path = out / SCORE / f"{run.key}.parquet"
-    data, _ = sealed_parquet(pa.Table.from_pandas(frame, preserve_index=False), "score", run.key)
-    atomic_write_bytes(path, data)
-    return path
+def write_score(out: Path | str, run: ScoreRun, frame: pd.DataFrame) -> Path:
+    """Store the rows of a finished score run (sealed, atomically)."""
+    return ResultStore(out).write_score(run.key, frame)
 
 
 def run_scores(
-    runs: list[ScoreRun], out: Path, *, jobs: int = 2, library: Library | None = None
+    runs: Sequence[ScoreRun], out: Path | str, *, jobs: int = 2, library: Library | None = None
 ) -> Iterator[ScoreRun]:
     """Carry out the runs not stored whole in ``out`` (on ``library``, by default the shipped
-    one); yields each as it is stored."""
-    todo = [run for run in runs if run.key not in stored_keys(out)]
-    if jobs == 1 or len(todo) <= 1:
-        for run in todo:
-            write_score(out, run, execute_score(run, library))
-            yield run
-        return
-    from joblib import Parallel, delayed, parallel_config
-
-    with parallel_config(backend="loky", inner_max_num_threads=1):
-        parallel = Parallel(n_jobs=jobs, return_as="generator_unordered", batch_size=1)
-        for run, frame in parallel(delayed(_execute_pair)(run, library) for run in todo):
-            write_score(out, run, frame)
-            yield run
-
-
-def _execute_pair(run: ScoreRun, library: Library | None) -> tuple[ScoreRun, pd.DataFrame]:
-    return run, execute_score(run, library)
+    one), holding the folder's lock; yields each as it is stored, and at the end raises
+    :class:`ScoreRunsFailed` naming the runs that raised (the others are stored)."""
+    store = ResultStore(out)
+    with store.lock():
+        store.remove_temporaries()
+        todo = [run for run in runs if not is_stored(store, run)]
+        by_key = {run.key: run for run in todo}
+        work = functools.partial(execute_score_run, library=library)
+        failed = []
+        results = run_locally(todo, jobs, work)
+        try:
+            for result in results:
+                run = by_key[result.key]
+                if result.failed:
+                    failed.append((run, result.error or ""))
+                    continue
+                store.write_score(run.key, result.rows)
+                yield run
+        finally:
+            # stop the workers now, and let no Ctrl-C cut that short (as a sweep does)
+            with interrupts_deferred():
+                results.close()
+    if failed:
+        raise ScoreRunsFailed(failed)
 
 
 def check_score_format(scores: pd.DataFrame, doing: str) -> None:
-    """Raise :class:`StoreError` naming the runs of ``scores`` stored in another
-    :data:`SCORE_FORMAT` (which lack columns ``doing`` needs), with the fix."""
+    """Raise :class:`StoreError` naming the runs of ``scores`` stored with columns that mean
+    other things than today's (which ``doing`` cannot use), with the fix."""
     stored = scores["score_format"] if "score_format" in scores else pd.Series(np.nan, scores.index)
-    old = scores[stored.fillna(0).astype(int) != SCORE_FORMAT]
+    old = scores[~stored.fillna(0).astype(int).isin(SAME_MEANING_SCORE_FORMATS)]
     if old.empty:
         return
     runs = old.drop_duplicates("run_key")
@@ -376,26 +435,10 @@ def check_score_format(scores: pd.DataFrame, doing: str) -> None:
 
 
 def load_scores(out: Path | str, *, notice: Callable[[str], None] = to_stderr) -> pd.DataFrame:
-    """Every intact stored score row of ``out``, one row per (run, instance).
+    """Every intact stored score row of ``out``, one row per (run, instance); a description
+    column a row lacks (stored before it was kept) is empty.
 
     A file that fails its checks is left out and named on stderr, one line each. How many
     files were used unverified (stored before checksums were kept) goes to ``notice``.
     """
-    folder = Path(out) / SCORE
-    paths = sorted(folder.glob("*.parquet")) if folder.is_dir() else []
-    redo = f"'formation-bench score' with the run's options and --out {out}"
-
-    def read(key: str) -> tuple[pd.DataFrame, bool]:
-        table, seal = read_table(folder / f"{key}.parquet", "score", key)
-        return table.to_pandas(), seal is not None
-
-    frames = intact_frames(
-        [(path, path.stem) for path in paths], read,
-        redo=redo, redo_all=redo, folder=folder, notice=notice,
-    )  # fmt: skip
-    if not frames:
-        raise StoreError(f"{out} holds no score runs (no intact {SCORE}/*.parquet)")
-    frame = pd.concat(frames, ignore_index=True)
-    return frame.sort_values(
-        ["optimizer", "budget", "seed", "library", "instance"], ignore_index=True
-    )
+    return load_stored_scores(out, list(DESCRIPTION_COLUMNS), notice=notice)

@@ -104,8 +104,12 @@ def read_sealed(path: Path, kind: str, key: str) -> tuple[bytes, dict[str, Any] 
 
 
 def decode(data: bytes, columns: list[str] | None = None) -> pa.Table:
-    """Parquet bytes as a table, every page checked against its checksum."""
+    """Parquet bytes as a table, every page checked against its checksum; with ``columns``,
+    those of them the file holds (a file stored before a column existed lacks it)."""
     try:
+        if columns is not None:
+            held = set(pq.read_schema(pa.BufferReader(data)).names)
+            columns = [c for c in columns if c in held]
         return pq.read_table(
             pa.BufferReader(data), columns=columns, page_checksum_verification=True
         )

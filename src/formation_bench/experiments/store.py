@@ -5,10 +5,11 @@ Layout of a results folder ``DIR``::
     DIR/manifest.json            suite file, package versions, git commit, machine, sessions
     DIR/runs/<key>.parquet       one row: the run's identity and metrics (the "finished" mark)
     DIR/traces/<key>.parquet     the per-instant trace, when the suite asks for traces
-    DIR/score/<key>.parquet      score runs (:mod:`~formation_bench.experiments.score`)
+    DIR/score/<key>.parquet      a score run's rows, one per instance
+                                 (:mod:`~formation_bench.experiments.score`)
 
 ``<key>`` is the hash of the run's identity
-(:attr:`formation_bench.pipeline.spec.RunSpec.key`).
+(:attr:`formation_bench.pipeline.spec.Identified.key`).
 Every file is written to a temporary name and renamed, and a trace is written
 before its run row, so a run row exists only for a finished run.
 
@@ -24,14 +25,24 @@ swapped for another run's or left from an earlier run of the same key is told ap
 SHA-256 of the file taken the same way; a manifest that lost either field is damaged, not
 taken for one written before checksums.
 
-Every reader verifies: resume (:meth:`ResultStore.status`, and ``score``'s
-:func:`~formation_bench.experiments.score.stored_keys`) checks the digest, the
+Every reader verifies: resume (:meth:`ResultStore.status` for a sweep's runs,
+:meth:`ResultStore.score_status` for score runs) checks the digest, the
 kind, the key against the file name, the page checksums and the row's own ``run_key``, and
 redoes a file that fails any of them (a trace is checked by its digest and the run's seal,
-without decoding it). :func:`load_results`, :func:`load_traces` and ``load_scores`` (what
+without decoding it). :func:`load_results`, :func:`load_traces` and :func:`load_scores` (what
 ``report``, ``export-ioh`` and the notebook read) leave such a file out and name it on
-stderr, one line per file. A file whose content belongs to another key (copied under
-another run's name) fails the key check everywhere, so it is never counted twice.
+stderr, one line per file.
+
+A stored row names the format of its columns (``record_format``, a score row's
+``score_format``). Resume keeps a row whose format means what today's columns mean (the
+record's :data:`~formation_bench.pipeline.record.SAME_MEANING_FORMATS`, the score's
+:data:`~formation_bench.experiments.score.SAME_MEANING_SCORE_FORMATS`) and whose
+``config_hash`` is the run's (a score row stored before score rows had one is kept), and
+redoes the rest (``stale``). Adding a column changes no format: the readers give a row stored
+before it the column empty (missing), so no stored run is redone for it.
+
+A file whose content belongs to another key (copied under another run's name) fails the key
+check everywhere, so it is never counted twice.
 
 A damaged manifest (not UTF-8, not JSON, not an object, fields of the wrong type, a failed
 checksum) or one missing while ``runs/`` holds runs stops a sweep with one line naming it
@@ -78,11 +89,13 @@ from formation_bench.experiments.seal import (
     sealed_parquet,
 )
 from formation_bench.pipeline.outputs import atomic_write_bytes
-from formation_bench.pipeline.record import RECORD_FORMAT, value_type
+from formation_bench.pipeline.record import SAME_MEANING_FORMATS, record_columns, value_type
 
 MANIFEST = "manifest.json"
 RUNS = "runs"
 TRACES = "traces"
+SCORE = "score"
+"""Subfolder of a results folder that holds score runs."""
 LOCK = ".lock"
 
 
@@ -153,9 +166,23 @@ class RunStatus:
 
     state: str
     """``done``, ``missing``, ``corrupt`` (fails its checksum, unreadable or wrong contents,
-    its trace too), ``stale`` (another configuration), ``unverified`` (stored before
-    checksums were kept) or ``no-trace`` (trace required but missing)."""
+    its trace too), ``stale`` (another configuration, or columns that mean other things),
+    ``unverified`` (stored before checksums were kept) or ``no-trace`` (trace required but
+    missing)."""
     detail: str = ""
+
+
+def stale_reason(
+    formats: set[Any], same_meaning: frozenset[int], hashes: set[Any], config_hash: str | None
+) -> str | None:
+    """Why stored rows of these formats and configuration hashes are not the run asked for
+    (None: they are). A row without a hash (None) was stored before its kind kept one; a
+    ``config_hash`` of None accepts any."""
+    if not formats <= same_meaning:
+        return "stored by a version whose result columns mean other things"
+    if config_hash is not None and hashes - {None, config_hash}:
+        return "configuration changed since it ran"
+    return None
 
 
 class ResultStore:
@@ -165,6 +192,7 @@ class ResultStore:
         self.root = Path(root)
         self.runs_dir = self.root / RUNS
         self.traces_dir = self.root / TRACES
+        self.score_dir = self.root / SCORE
 
     # paths ----------------------------------------------------------------------------------------
 
@@ -173,6 +201,9 @@ class ResultStore:
 
     def trace_path(self, key: str) -> Path:
         return self.traces_dir / f"{key}.parquet"
+
+    def score_path(self, key: str) -> Path:
+        return self.score_dir / f"{key}.parquet"
 
     @property
     def manifest_path(self) -> Path:
@@ -186,7 +217,8 @@ class ResultStore:
 
     @contextlib.contextmanager
     def lock(self) -> Iterator[None]:
-        """Hold the folder for one sweep; a second sweep into it fails instead of racing.
+        """Hold the folder for one sweep or score; a second one into it fails instead of
+        racing.
 
         The kernel drops the lock when the process dies, even by SIGKILL.
         """
@@ -196,7 +228,8 @@ class ResultStore:
                 fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 raise StoreBusy(
-                    f"{self.root} is in use by another sweep (wait for it, or choose another --out)"
+                    f"{self.root} is in use by another sweep or score (wait for it, or choose "
+                    "another --out)"
                 ) from None
             try:
                 yield
@@ -206,7 +239,7 @@ class ResultStore:
     def remove_temporaries(self) -> int:
         """Delete temporary files left by an interrupted write (call while holding the lock)."""
         removed = 0
-        for folder in (self.runs_dir, self.traces_dir, self.root):
+        for folder in (self.runs_dir, self.traces_dir, self.score_dir, self.root):
             if folder.is_dir():
                 for path in folder.glob(".*.tmp"):
                     path.unlink(missing_ok=True)
@@ -228,6 +261,13 @@ class ResultStore:
         data, _ = sealed_parquet(table, "run", key, trace=trace_digest)
         atomic_write_bytes(self.run_path(key), data)
 
+    def write_score(self, key: str, rows: pd.DataFrame) -> Path:
+        """Store a finished score run, its rows in one file, atomically and sealed."""
+        path = self.score_path(key)
+        data, _ = sealed_parquet(pa.Table.from_pandas(rows, preserve_index=False), "score", key)
+        atomic_write_bytes(path, data)
+        return path
+
     # reading --------------------------------------------------------------------------------------
 
     def status(self, key: str, config_hash: str, need_trace: bool) -> RunStatus:
@@ -242,10 +282,11 @@ class ResultStore:
         if table.num_rows != 1:
             return RunStatus("corrupt", f"{table.num_rows} rows")
         row = table.to_pylist()[0]
-        if row.get("record_format") != RECORD_FORMAT:
-            return RunStatus("stale", "stored by a version with other result columns")
-        if row.get("config_hash") != config_hash:
-            return RunStatus("stale", "configuration changed since it ran")
+        stale = stale_reason(
+            {row.get("record_format")}, SAME_MEANING_FORMATS, {row.get("config_hash")}, config_hash
+        )
+        if stale is not None or row.get("config_hash") is None:
+            return RunStatus("stale", stale or "stored without its configuration hash")
         if seal is None:
             return RunStatus("unverified", "stored before checksums were kept")
         if need_trace:
@@ -262,11 +303,59 @@ class ResultStore:
                 return RunStatus("corrupt", "trace: not the trace stored with the run")
         return RunStatus("done")
 
+    def score_status(
+        self, key: str, config_hash: str | None, formats: frozenset[int], format_column: str
+    ) -> RunStatus:
+        """Whether the score run ``key`` is stored whole and sealed, its rows of one of
+        ``formats`` (in ``format_column``) and of the configuration ``config_hash`` (None:
+        of any)."""
+        path = self.score_path(key)
+        if not path.exists():
+            return RunStatus("missing")
+        try:
+            table, seal = read_table(path, "score", key, ["run_key", format_column, "config_hash"])
+        except IntegrityError as err:
+            return RunStatus("corrupt", str(err))
+        stale = stale_reason(
+            set(_column(table, format_column)),
+            formats,
+            set(_column(table, "config_hash")),
+            config_hash,
+        )
+        if stale is not None:
+            return RunStatus("stale", stale)
+        if seal is None:
+            return RunStatus("unverified", "stored before checksums were kept")
+        return RunStatus("done")
+
     def keys(self) -> list[str]:
         """Keys of every run file present (read or not)."""
-        if not self.runs_dir.is_dir():
-            return []
-        return sorted(p.stem for p in self.runs_dir.glob("*.parquet"))
+        return _stems(self.runs_dir)
+
+    def score_keys(self) -> list[str]:
+        """Keys of every score file present (read or not)."""
+        return _stems(self.score_dir)
+
+
+def _stems(folder: Path) -> list[str]:
+    return sorted(p.stem for p in folder.glob("*.parquet")) if folder.is_dir() else []
+
+
+def _column(table: pa.Table, name: str) -> list[Any]:
+    """The values of a column; a column the file lacks (stored before it existed) is None."""
+    if name not in table.column_names:
+        return [None] * table.num_rows
+    return table.column(name).to_pylist()
+
+
+def with_declared_columns(frame: pd.DataFrame, columns: list[str]) -> pd.DataFrame:
+    """``frame`` with every column of ``columns`` it lacks added empty (missing): rows stored
+    before a column was declared read it so."""
+    missing = [c for c in columns if c not in frame.columns]
+    if not missing:
+        return frame
+    empty = pd.DataFrame({c: pd.Series(None, index=frame.index, dtype=object) for c in missing})
+    return pd.concat([frame, empty], axis=1)
 
 
 _ARROW_TYPES = {int: pa.int64(), str: pa.string(), bool: pa.bool_()}
@@ -297,7 +386,9 @@ def load_results(
     )  # fmt: skip
     if not frames:
         raise StoreError(f"{root} holds no finished runs")
-    frame = pd.concat(frames, ignore_index=True)
+    frame = with_declared_columns(
+        pd.concat(frames, ignore_index=True), [name for name, _, _ in record_columns()]
+    )
     order = [
         c
         for c in ("scenario", "optimizer", "budget", "trigger", "seed", "run_key")
@@ -354,3 +445,34 @@ def _verified_trace(store: ResultStore, key: str) -> tuple[pd.DataFrame, bool]:
     if run_seal is not None and (seal is None or run_seal.get("trace") != seal.get("sha256")):
         raise IntegrityError("not the trace stored with its run")
     return decode(data).to_pandas(), seal is not None
+
+
+def load_scores(
+    root: Path | str,
+    declared: list[str] | None = None,
+    *,
+    notice: Callable[[str], None] = to_stderr,
+) -> pd.DataFrame:
+    """Every intact stored score row of ``root``, one row per (run, instance), with the
+    ``declared`` columns a row lacks empty.
+
+    A file that fails its checks is left out and named on stderr, one line each. How many
+    files were used unverified (stored before checksums were kept) goes to ``notice``.
+    """
+    store = ResultStore(root)
+    redo = f"'formation-bench score' with the run's options and --out {root}"
+
+    def read(key: str) -> tuple[pd.DataFrame, bool]:
+        table, seal = read_table(store.score_path(key), "score", key)
+        return table.to_pandas(), seal is not None
+
+    frames = intact_frames(
+        [(store.score_path(key), key) for key in store.score_keys()], read,
+        redo=redo, redo_all=redo, folder=store.score_dir, notice=notice,
+    )  # fmt: skip
+    if not frames:
+        raise StoreError(f"{root} holds no score runs (no intact {SCORE}/*.parquet)")
+    frame = with_declared_columns(pd.concat(frames, ignore_index=True), declared or [])
+    return frame.sort_values(
+        ["optimizer", "budget", "seed", "library", "instance"], ignore_index=True
+    )

@@ -41,11 +41,13 @@ from formation_bench.pipeline.checks import (
 from formation_bench.pipeline.spec import (
     RunSpec,
     canonical_json,
+    deadline_s_of_ms,
+    flat_fields,
     from_json_value,
     labelled,
-    resolved_budget,
     resolved_config_hash,
     sha256_hex,
+    solve_budget,
 )
 from formation_bench.plugins import loaded_plugins
 
@@ -57,10 +59,9 @@ TABLE_FIELDS = ("optimizers", "scenarios")
 OPTIMIZER_FIELDS = ("name", "label", "overrides", "optional", "exclude", "budgets")
 SCENARIO_FIELDS = ("name", "label", "overrides")
 BUDGET_FIELDS = ("max_evaluations", "max_iterations", "deadline_ms")
+"""Keys of a budget table in a suite file; ``deadline_ms`` is in milliseconds, read into the
+seconds of :attr:`Budget.deadline_s`."""
 ALL_OPTIMIZERS = "*"
-
-Limits = tuple[int | None, int | None, float | None]
-"""A budget as ``(max_evaluations, max_iterations, deadline_ms)``; all None = the default."""
 
 
 class SuiteError(ValueError):
@@ -78,10 +79,10 @@ class Entry:
     name: str
     overrides: str
     """Canonical JSON of the effective overrides."""
-    budgets: tuple[Limits, ...] | None = None
+    budgets: tuple[Budget | None, ...] | None = None
     """An optimiser's own budgets, in place of the suite's (None: the suite's)."""
 
-    def budgets_or(self, suite_budgets: tuple[Limits, ...]) -> tuple[Limits, ...]:
+    def budgets_or(self, suite_budgets: tuple[Budget | None, ...]) -> tuple[Budget | None, ...]:
         """The budgets this entry runs at, given the suite's."""
         return suite_budgets if self.budgets is None else self.budgets
 
@@ -97,9 +98,9 @@ class Suite:
     description: str
     seeds: tuple[int, ...]
     triggers: tuple[bool, ...]
-    budgets: tuple[Limits, ...]
-    """``(max_evaluations, max_iterations, deadline_ms)`` per budget; all None = default.
-    An optimiser entry with budgets of its own runs those instead."""
+    budgets: tuple[Budget | None, ...]
+    """The per-solve budgets; None: the optimiser's own (``"default"``). An optimiser entry
+    with budgets of its own runs those instead."""
     trace: bool
     optimizers: tuple[Entry, ...]
     scenarios: tuple[Entry, ...]
@@ -110,7 +111,7 @@ class Suite:
     def sha256(self) -> str:
         return sha256_hex(self.text)
 
-    def budgets_of(self, entry: Entry) -> tuple[Limits, ...]:
+    def budgets_of(self, entry: Entry) -> tuple[Budget | None, ...]:
         """The budgets an optimiser entry runs at."""
         return entry.budgets_or(self.budgets)
 
@@ -125,10 +126,10 @@ class Suite:
                 optimizer = get_optimizer(
                     optimizer_entry.name, **from_json_value(json.loads(optimizer_entry.overrides))
                 )
-                for limits in self.budgets_of(optimizer_entry):
-                    max_evaluations, max_iterations, deadline_ms = limits
-                    budget = resolved_budget(*limits, optimizer)
-                    config_hash = resolved_config_hash(scenario, optimizer, budget)
+                for budget in self.budgets_of(optimizer_entry):
+                    config_hash = resolved_config_hash(
+                        scenario, optimizer, solve_budget(budget, optimizer)
+                    )
                     for trigger in self.triggers:
                         for seed in self.seeds:
                             spec = RunSpec(
@@ -140,9 +141,7 @@ class Suite:
                                 scenario_name=scenario_entry.name,
                                 scenario_overrides=scenario_entry.overrides,
                                 trigger=trigger,
-                                budget_max_evaluations=max_evaluations,
-                                budget_max_iterations=max_iterations,
-                                budget_deadline_ms=deadline_ms,
+                                budget=budget,
                                 seed=seed,
                                 trace=self.trace,
                                 config_hash=config_hash,
@@ -304,21 +303,23 @@ class _Validator:
             )
         return tuple(triggers)
 
-    def budgets(self) -> tuple[Limits, ...]:
+    def budgets(self) -> tuple[Budget | None, ...]:
         return self.budget_list(("budgets",), self.data.get("budgets", ["default"]))
 
-    def budget_list(self, where_list: tuple[Any, ...], budgets: Any) -> tuple[Limits, ...]:
+    def budget_list(
+        self, where_list: tuple[Any, ...], budgets: Any
+    ) -> tuple[Budget | None, ...]:
         if not isinstance(budgets, list) or not budgets:
             raise self.fail(
                 where_list,
                 'must be a non-empty list of "default" or tables '
                 f"{{max_evaluations = N, max_iterations = M, deadline_ms = T}}, got {budgets!r}",
             )
-        result = []
+        result: list[Budget | None] = []
         for k, budget in enumerate(budgets):
             where = (*where_list, k)
             if budget == "default":
-                result.append((None, None, None))
+                result.append(None)
                 continue
             if not isinstance(budget, dict):
                 raise self.fail(
@@ -343,17 +344,18 @@ class _Validator:
                     (*where, "deadline_ms"), f"must be a number of milliseconds > 0, got "
                     f"{deadline_ms!r}",
                 )  # fmt: skip
+            if not limits and deadline_ms is None:  # an empty table: the optimiser's own
+                result.append(None)
+                continue
             try:
-                checked = Budget(**limits) if limits else None
+                result.append(
+                    Budget(
+                        **limits,
+                        deadline_s=None if deadline_ms is None else deadline_s_of_ms(deadline_ms),
+                    )
+                )
             except ValueError as err:
                 raise self.fail(where, str(err)) from None
-            result.append(
-                (
-                    None if checked is None else checked.max_evaluations,
-                    None if checked is None else checked.max_iterations,
-                    None if deadline_ms is None else float(deadline_ms),
-                )
-            )
         if len(set(result)) != len(result):
             raise self.fail(where_list, "budgets must be distinct")
         return tuple(result)
@@ -442,12 +444,12 @@ class _Validator:
 
     def check_settle_time(self, entry: Entry) -> None:
         scenario = get_scenario(entry.name, **from_json_value(json.loads(entry.overrides)))
-        end = scenario.n_steps * scenario.period_s
-        if scenario.settle_time_s > end + 1e-9:
+        end = scenario.timing.n_steps * scenario.timing.period_s
+        if scenario.evaluation.settle_time_s > end + 1e-9:
             where = self.find_entry("scenarios", entry)
             raise self.fail(
                 (*where, "overrides", "settle_time_s"),
-                f"settle_time_s={scenario.settle_time_s:g} is after the end of the run "
+                f"settle_time_s={scenario.evaluation.settle_time_s:g} is after the end of the run "
                 f"({end:g} s = n_steps * period_s); lower settle_time_s",
             )
 
@@ -455,7 +457,7 @@ class _Validator:
         self,
         optimizers: tuple[Entry, ...],
         scenarios: tuple[Entry, ...],
-        budgets: tuple[Limits, ...],
+        budgets: tuple[Budget | None, ...],
     ) -> None:
         """Every combination must be a run that finishes (before any of them starts)."""
         for scenario_entry in scenarios:
@@ -466,10 +468,9 @@ class _Validator:
                 optimizer = get_optimizer(
                     optimizer_entry.name, **from_json_value(json.loads(optimizer_entry.overrides))
                 )
-                for limits in optimizer_entry.budgets_or(budgets):
-                    budget = resolved_budget(*limits, optimizer)
+                for budget in optimizer_entry.budgets_or(budgets):
                     try:
-                        check_run(scenario, optimizer, budget)
+                        check_run(scenario, optimizer, solve_budget(budget, optimizer))
                     except LimitError as err:
                         raise self.fail(
                             (), f"{scenario_entry.label} with {optimizer_entry.label}: {err}"
@@ -500,7 +501,7 @@ class _Validator:
             raise self.fail(
                 (*where, "overrides"), f"must be a table of FIELD = VALUE, got {overrides!r}"
             )
-        fields = sorted(f.name for f in dataclasses.fields(default))
+        fields = sorted(flat_fields(default))
         for key in overrides:
             if key not in fields:
                 raise self.fail(

@@ -314,7 +314,7 @@ def _execute(
         ) as bar:
             for result in results:
                 spec = by_key[result.key]
-                if result.row is None:
+                if result.failed:
                     summary.failed.append(
                         {"run": spec.describe(), "key": spec.key, "error": result.error or ""}
                     )

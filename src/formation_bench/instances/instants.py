@@ -88,8 +88,8 @@ def record_instants(
 ) -> list[RecordedInstant]:
     """Problems of every UAV at the given instants of a run without trigger."""
     last = max(steps)
-    if last >= scenario.n_steps:
-        raise ValueError(f"steps must be < n_steps={scenario.n_steps}, got {last}")
+    if last >= scenario.timing.n_steps:
+        raise ValueError(f"steps must be < n_steps={scenario.timing.n_steps}, got {last}")
     recorder = ObservedOptimizer(optimizer)
     short = scenario.with_overrides(n_steps=last + 1, settle_time_s=0.0)
     simulate(short, recorder, trigger=False, seed=seed)

@@ -143,12 +143,12 @@ def solve_setting(scenario: Scenario, uav: int) -> dict[str, Any]:
     _, bounds = decision_space(scenario, uav)
     penalties = scenario_penalties(scenario)
     return {
-        "horizon_steps": scenario.horizon_steps,
-        "n_blocks": scenario.n_blocks,
-        "period_s": scenario.period_s,
-        "rk4_substeps": scenario.rk4_substeps,
-        "w_dst": scenario.w_dst,
-        "w_trj": scenario.w_trj,
+        "horizon_steps": scenario.timing.horizon_steps,
+        "n_blocks": scenario.timing.n_blocks,
+        "period_s": scenario.timing.period_s,
+        "rk4_substeps": scenario.timing.rk4_substeps,
+        "w_dst": scenario.weights.w_dst,
+        "w_trj": scenario.weights.w_trj,
         "n_uav": scenario.n_uav,
         "lower": bounds.lower,
         "upper": bounds.upper,
@@ -228,7 +228,11 @@ def phase_of(step: int, scenario: Scenario) -> str:
     """The phase (one of :data:`PHASES`) of update instant ``step`` in ``scenario``."""
     if step == 0:
         return "start-up"
-    return "transient" if step * scenario.period_s < scenario.settle_time_s else "steady"
+    return (
+        "transient"
+        if step * scenario.timing.period_s < scenario.evaluation.settle_time_s
+        else "steady"
+    )
 
 
 def is_degenerate(j_star: float | np.ndarray, warm_cost: float | np.ndarray) -> bool | np.ndarray:

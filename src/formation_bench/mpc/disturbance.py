@@ -37,22 +37,23 @@ class Disturbances:
         self.noise_rng = noise_rng
         n_uav = scenario.n_uav
         self.gusts = np.zeros((n_uav, 2))
-        if scenario.gust_std_m_s > 0:
-            self.gusts = wind_rng.normal(0.0, scenario.gust_std_m_s, size=(n_uav, 2))
+        if scenario.disturbances.gust_std_m_s > 0:
+            self.gusts = wind_rng.normal(0.0, scenario.disturbances.gust_std_m_s, size=(n_uav, 2))
         self.noise_std = np.array(
             [
-                scenario.position_noise_std_m,
-                scenario.position_noise_std_m,
-                scenario.heading_noise_std_rad,
-                scenario.speed_noise_std_m_s,
+                scenario.disturbances.position_noise_std_m,
+                scenario.disturbances.position_noise_std_m,
+                scenario.disturbances.heading_noise_std_rad,
+                scenario.disturbances.speed_noise_std_m_s,
             ]
         )
-        self.gains = np.array([scenario.plant_accel_gain, scenario.plant_turn_rate_gain])
+        disturbances = scenario.disturbances
+        self.gains = np.array([disturbances.plant_accel_gain, disturbances.plant_turn_rate_gain])
 
     @property
     def wind(self) -> np.ndarray:
         """``(N, 2)`` wind velocity over the current period, m/s."""
-        return np.asarray(self.scenario.wind_mean_m_s, dtype=np.float64) + self.gusts
+        return np.asarray(self.scenario.disturbances.wind_mean_m_s, dtype=np.float64) + self.gusts
 
     def measure(self, states: np.ndarray) -> np.ndarray:
         """``(N, 4)``: the states as the UAVs measure them (``states`` itself without noise)."""
@@ -62,15 +63,15 @@ class Disturbances:
 
     def step(self, states: np.ndarray, controls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The plant's next states under ``controls`` (commanded), and the wind that acted."""
-        scenario = self.scenario
+        timing, disturbances = self.scenario.timing, self.scenario.disturbances
         if np.any(self.gains != 1.0):
             controls = controls * self.gains
-        following = step_plant(states, controls, scenario.period_s, scenario.rk4_substeps)
+        following = step_plant(states, controls, timing.period_s, timing.rk4_substeps)
         wind = self.wind
         if np.any(wind != 0.0):
-            following[:, :2] += wind * scenario.period_s
-        if scenario.gust_std_m_s > 0:
-            decay = math.exp(-scenario.period_s / scenario.gust_time_constant_s)
-            spread = scenario.gust_std_m_s * math.sqrt(1.0 - decay * decay)
+            following[:, :2] += wind * timing.period_s
+        if disturbances.gust_std_m_s > 0:
+            decay = math.exp(-timing.period_s / disturbances.gust_time_constant_s)
+            spread = disturbances.gust_std_m_s * math.sqrt(1.0 - decay * decay)
             self.gusts = decay * self.gusts + spread * self.wind_rng.normal(size=self.gusts.shape)
         return following, wind

@@ -1,22 +1,19 @@
-"""Formation shapes for any number of UAVs, seeded initial states, and swarm scenarios.
+"""Formation shapes for any number of UAVs, and seeded initial states around them.
 
 A shape gives every UAV's offset from the formation centre in the path frame (x forward,
-y left), with zero mean, neighbouring slots ``spacing_m`` apart. :func:`swarm_scenario` turns
-a shape into a :class:`~formation_bench.mpc.scenario.Scenario` with explicit initial states,
-drawn once from a documented, seeded distribution around the start of the reference
-(:func:`scattered_initial_states`), so a registered swarm is plain data: every run of it
-starts from the same states, whatever the run's seed.
+y left), with zero mean, neighbouring slots ``spacing_m`` apart.
+:func:`~formation_bench.mpc.scenario.swarm_scenario` turns a shape into a scenario with
+explicit initial states, drawn once from a documented, seeded distribution around the start
+of the reference (:func:`scattered_initial_states`), so a registered swarm is plain data:
+every run of it starts from the same states, whatever the run's seed.
 """
 
 from __future__ import annotations
 
 import enum
 import math
-from typing import Any
 
 import numpy as np
-
-from formation_bench.mpc.scenario import Scenario, register_scenario
 
 
 class FormationShape(enum.StrEnum):
@@ -120,37 +117,3 @@ def scattered_initial_states(
     headings = heading + rng.normal(0.0, heading_std_rad, size=n_uav)
     speeds = rng.uniform(*speed_range_m_s, size=n_uav)
     return np.column_stack((positions, headings, speeds))
-
-
-def swarm_scenario(
-    name: str,
-    n_uav: int,
-    *,
-    shape: FormationShape | str = FormationShape.WEDGE,
-    spacing_m: float = 10.0,
-    layout_seed: int = 2022,
-    **fields: Any,
-) -> Scenario:
-    """A scenario of ``n_uav`` UAVs in ``shape``, starting scattered around the reference start.
-
-    The initial states come from :func:`scattered_initial_states` with a Generator seeded by
-    ``layout_seed`` and are stored in the scenario as data; ``fields`` sets any other
-    scenario field (graph, disturbances, ...).
-    """
-    offsets = formation_offsets(shape, n_uav, spacing_m)
-    states = scattered_initial_states(offsets, np.random.default_rng(layout_seed))
-    return Scenario(
-        name=name,
-        initial_states=tuple(tuple(float(v) for v in row) for row in states),
-        formation_offsets=tuple(tuple(float(v) for v in row) for row in offsets),
-        reference_start=(0.0, 0.0),
-        **fields,
-    )
-
-
-SWARM_SIZES = {5: FormationShape.WEDGE, 10: FormationShape.GRID, 20: FormationShape.GRID,
-               25: FormationShape.GRID}  # fmt: skip
-"""The registered swarms ``swarm-N``: number of UAVs and formation."""
-
-for _n, _shape in SWARM_SIZES.items():
-    register_scenario(swarm_scenario(f"swarm-{_n}", _n, shape=_shape))

@@ -117,148 +117,278 @@ def simulate(
     budget: Budget | None = None,
     progress: ProgressCallback | None = None,
 ) -> Trace:
-    """Run the closed loop for ``scenario.n_steps`` instants and log it."""
+    """Run the closed loop for ``scenario.timing.n_steps`` instants and log it."""
     start_time = time.perf_counter()
-    n_uav, horizon, period = scenario.n_uav, scenario.horizon_steps, scenario.period_s
-    n_steps = scenario.n_steps
-    # the UAVs' streams come first, so adding the environment's changed none of them
-    streams = np.random.SeedSequence(seed).spawn(n_uav + 3)
-    rngs = [np.random.default_rng(s) for s in streams[:n_uav]]
-    network_rng, wind_rng, noise_rng = (np.random.default_rng(s) for s in streams[n_uav:])
-
-    times = np.arange(n_steps + horizon + 1) * period
-    reference, heading = scenario.reference_at(times)
-    offsets = scenario.desired_offsets(heading)  # (n_steps + H + 1, N, 2)
-    lookahead = scenario.trigger_lookahead
-    bounds = [scenario.control_bounds_of(i) for i in range(n_uav)]
-    # off the complete graph the centre is estimated from the UAV and its neighbours alone
-    group_centre = scenario.graph != CommunicationGraph.COMPLETE
-
-    states = np.empty((n_steps + 1, n_uav, 4))
-    states[0] = scenario.initial_state_array()
-    controls = np.zeros((n_steps, n_uav, 2))
-    solved = np.zeros((n_steps, n_uav), dtype=bool)
-    reasons = np.zeros((n_steps, n_uav, 4), dtype=bool)
-    solve_time = np.full((n_steps, n_uav), np.nan)
-    nfev = np.zeros((n_steps, n_uav), dtype=np.int64)
-    solve_cost = np.full((n_steps, n_uav), np.nan)
-    solve_failed = np.zeros((n_steps, n_uav), dtype=bool)
-    plan_at_bound = np.zeros((n_steps, n_uav), dtype=bool)
-    neighbours = np.zeros((n_steps, n_uav, n_uav), dtype=bool)
-    plans_lost = np.zeros((n_steps, n_uav), dtype=np.int64)
-    plans_late = np.zeros((n_steps, n_uav), dtype=np.int64)
-    wind = np.zeros((n_steps, n_uav, 2))
-
-    plans: list[Plan] = [coasting_plan(states[0, i], 0, scenario) for i in range(n_uav)]
-    network = Network(scenario, plans, network_rng)
-    disturbances = Disturbances(scenario, wind_rng, noise_rng)
+    loop = ClosedLoop(scenario, optimizer, trigger=trigger, seed=seed, budget=budget)
+    n_steps = scenario.timing.n_steps
     for c in range(n_steps):
-        network.advance_links()
-        plans_late[c] = network.deliver(c)
-        listens = listening(scenario, states[c, :, :2])
-        neighbours[c] = listens
-        measured = disturbances.measure(states[c])
-        estimated: dict[int, np.ndarray] = {}  # positions at c .. c + H, once per plan
-        published = list(plans)
-        for i in range(n_uav):
-            heard = [int(j) for j in np.flatnonzero(listens[i])]
-            for plan in (plans[i], *(network.held[i][j] for j in heard)):
-                if id(plan) not in estimated:
-                    estimated[id(plan)] = estimate_positions(
-                        plan, c, horizon + 1, period, scenario.estimate_extension
-                    )
-            own = estimated[id(plans[i])]
-            others = (
-                np.stack([estimated[id(network.held[i][j])] for j in heard])
-                if heard
-                else np.zeros((0, horizon + 1, 2))
-            )  # (J, H + 1, 2)
-            desired_relative = np.transpose(
-                offsets[c : c + horizon + 1, i][:, None] - offsets[c : c + horizon + 1, heard],
-                (1, 0, 2),
-            )  # (J, H + 1, 2)
-            group_offsets = (
-                offsets[c : c + horizon + 1, [i, *heard]].sum(axis=1) if group_centre else None
-            )
-            lower, upper = bounds[i]
-            if c == 0:
-                decision = TriggerDecision(False, False, False, True)
-            else:
-                window = slice(0, lookahead + 1)
-                own_plan = plans[i]
-                decision = TriggerDecision(
-                    distance=distance_condition(
-                        own[window], others[:, window], desired_relative[:, window], scenario.eps_p
-                    ),
-                    tracking=tracking_condition(
-                        own[window],
-                        others[:, window],
-                        reference[c : c + lookahead + 1],
-                        centre_group_size(n_uav, len(heard), group_centre),
-                        scenario.eps_o,
-                        None if group_offsets is None else group_offsets[window],
-                    ),
-                    control=c - own_plan.start_step < horizon
-                    and control_condition(
-                        own_plan.controls[c - own_plan.start_step], lower, upper, scenario.eta
-                    ),
-                    expiry=expiry_condition(c - own_plan.start_step, horizon),
-                )
-            reasons[c, i] = decision.as_tuple()
-            if trigger and not decision.fire:
-                continue
-            solve_start = time.perf_counter()
-            problem = LocalProblem(
-                scenario,
-                i,
-                measured[i],
-                np.ascontiguousarray(others[:, 1:]),
-                desired_relative[:, 1:],
-                reference[c + 1 : c + horizon + 1],
-                None if group_offsets is None else group_offsets[1:],
-            )
-            warm_start = problem.decision_from_controls(shifted_controls(plans[i], c))
-            result = optimizer.minimize(problem, problem.bounds, rngs[i], budget, warm_start)
-            decision = result.x
-            if not result.success:  # a failed solve falls back to the shifted previous plan
-                decision = warm_start
-                solve_failed[c, i] = True
-            published[i] = problem.plan(decision, c)
-            solve_time[c, i] = time.perf_counter() - solve_start
-            solved[c, i] = True
-            nfev[c, i] = result.nfev
-            solve_cost[c, i] = result.fun
-            plan_at_bound[c, i] = at_bound(decision, problem.bounds.lower, problem.bounds.upper)
-            plans_lost[c] += network.send(c, i, published[i], listens[:, i])
-        plans = published
-        for i in range(n_uav):
-            controls[c, i] = plans[i].controls[c - plans[i].start_step]
-        states[c + 1], wind[c] = disturbances.step(states[c], controls[c])
+        loop.control_period(c)
         if progress is not None:
             progress(c + 1, n_steps)
-
-    return Trace(
-        scenario=scenario,
-        optimizer=optimizer_name or type(optimizer).__name__,
-        trigger=trigger,
-        seed=seed,
-        times=times[: n_steps + 1],
-        states=states,
-        controls=controls,
-        solved=solved,
-        reasons=reasons,
-        solve_time_s=solve_time,
-        nfev=nfev,
-        solve_cost=solve_cost,
-        reference=reference[: n_steps + 1],
-        reference_heading=heading[: n_steps + 1],
-        desired_offsets=offsets[: n_steps + 1],
-        wall_time_s=time.perf_counter() - start_time,
-        solve_failed=solve_failed,
-        plan_at_bound=plan_at_bound,
-        deadline_s=None if budget is None else budget.deadline_s,
-        neighbours=neighbours,
-        plans_lost=plans_lost,
-        plans_late=plans_late,
-        wind=wind,
+    return loop.trace(
+        optimizer_name or type(optimizer).__name__, seed, time.perf_counter() - start_time
     )
+
+
+@dataclass(frozen=True)
+class RandomStreams:
+    """A run's random numbers: one Generator per UAV (its solves), then the links', the
+    wind's and the measurement noise's, all spawned from the run's seed."""
+
+    uavs: list[np.random.Generator]
+    network: np.random.Generator
+    wind: np.random.Generator
+    noise: np.random.Generator
+
+    @classmethod
+    def spawned(cls, seed: int, n_uav: int) -> RandomStreams:
+        # the UAVs' streams come first, so adding the environment's changed none of them
+        streams = np.random.SeedSequence(seed).spawn(n_uav + 3)
+        uavs = [np.random.default_rng(s) for s in streams[:n_uav]]
+        network, wind, noise = (np.random.default_rng(s) for s in streams[n_uav:])
+        return cls(uavs, network, wind, noise)
+
+
+@dataclass(frozen=True)
+class TraceLog:
+    """The per-instant arrays of a run as it fills them (T instants, N UAVs; see
+    :class:`Trace` for each)."""
+
+    states: np.ndarray
+    controls: np.ndarray
+    solved: np.ndarray
+    reasons: np.ndarray
+    solve_time_s: np.ndarray
+    nfev: np.ndarray
+    solve_cost: np.ndarray
+    solve_failed: np.ndarray
+    plan_at_bound: np.ndarray
+    neighbours: np.ndarray
+    plans_lost: np.ndarray
+    plans_late: np.ndarray
+    wind: np.ndarray
+
+    @classmethod
+    def empty(cls, n_steps: int, initial_states: np.ndarray) -> TraceLog:
+        """Nothing logged yet: the initial states, no solve, no control."""
+        n_uav = initial_states.shape[0]
+        states = np.empty((n_steps + 1, n_uav, 4))
+        states[0] = initial_states
+        return cls(
+            states=states,
+            controls=np.zeros((n_steps, n_uav, 2)),
+            solved=np.zeros((n_steps, n_uav), dtype=bool),
+            reasons=np.zeros((n_steps, n_uav, 4), dtype=bool),
+            solve_time_s=np.full((n_steps, n_uav), np.nan),
+            nfev=np.zeros((n_steps, n_uav), dtype=np.int64),
+            solve_cost=np.full((n_steps, n_uav), np.nan),
+            solve_failed=np.zeros((n_steps, n_uav), dtype=bool),
+            plan_at_bound=np.zeros((n_steps, n_uav), dtype=bool),
+            neighbours=np.zeros((n_steps, n_uav, n_uav), dtype=bool),
+            plans_lost=np.zeros((n_steps, n_uav), dtype=np.int64),
+            plans_late=np.zeros((n_steps, n_uav), dtype=np.int64),
+            wind=np.zeros((n_steps, n_uav, 2)),
+        )
+
+
+@dataclass(frozen=True)
+class Neighbourhood:
+    """What one UAV knows at an instant, over the predicted instants c .. c + H."""
+
+    heard: list[int]
+    """The neighbours it listens to."""
+    own: np.ndarray
+    """``(H + 1, 2)`` its own estimated positions (from its current plan)."""
+    others: np.ndarray
+    """``(J, H + 1, 2)`` its neighbours' estimated positions (from the plans it holds)."""
+    desired_relative: np.ndarray
+    """``(J, H + 1, 2)`` its desired position relative to each neighbour."""
+    group_offsets: np.ndarray | None
+    """``(H + 1, 2)`` the sum of its and its neighbours' desired offsets, when it estimates the
+    formation centre from them alone (off the complete graph); None on the complete graph."""
+
+
+class ClosedLoop:
+    """One run of the closed loop: the swarm's plans, links and plant between instants, and the
+    log of every instant."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        optimizer: Optimizer,
+        *,
+        trigger: bool,
+        seed: int,
+        budget: Budget | None,
+    ) -> None:
+        self.scenario, self.optimizer, self.trigger_on, self.budget = (
+            scenario, optimizer, trigger, budget
+        )  # fmt: skip
+        n_uav, timing = scenario.n_uav, scenario.timing
+        self.n_uav, self.horizon, self.period = n_uav, timing.horizon_steps, timing.period_s
+        n_steps = timing.n_steps
+        self.streams = RandomStreams.spawned(seed, n_uav)
+
+        self.times = np.arange(n_steps + self.horizon + 1) * self.period
+        self.reference, self.heading = scenario.reference_at(self.times)
+        self.offsets = scenario.desired_offsets(self.heading)  # (n_steps + H + 1, N, 2)
+        self.lookahead = scenario.trigger_lookahead
+        self.bounds = [scenario.control_bounds_of(i) for i in range(n_uav)]
+        # off the complete graph the centre is estimated from the UAV and its neighbours alone
+        self.group_centre = scenario.communication.graph != CommunicationGraph.COMPLETE
+
+        self.log = TraceLog.empty(n_steps, scenario.initial_state_array())
+        self.plans: list[Plan] = [
+            coasting_plan(self.log.states[0, i], 0, scenario) for i in range(n_uav)
+        ]
+        self.network = Network(scenario, self.plans, self.streams.network)
+        self.disturbances = Disturbances(scenario, self.streams.wind, self.streams.noise)
+
+    def control_period(self, c: int) -> None:
+        """The period from instant ``c``: plans arrive, every UAV decides whether to re-solve
+        (and if so solves and sends its new plan), then every UAV applies its plan's control
+        and the plant moves on to instant ``c + 1``."""
+        log, network = self.log, self.network
+        network.advance_links()
+        log.plans_late[c] = network.deliver(c)
+        listens = listening(self.scenario, log.states[c, :, :2])
+        log.neighbours[c] = listens
+        measured = self.disturbances.measure(log.states[c])
+        estimated: dict[int, np.ndarray] = {}  # positions at c .. c + H, once per plan
+        published = list(self.plans)
+        for i in range(self.n_uav):
+            known = self.neighbourhood(c, i, listens, estimated)
+            decision = self.trigger_decision(c, i, known)
+            log.reasons[c, i] = decision.as_tuple()
+            if self.trigger_on and not decision.fire:
+                continue
+            published[i] = self.solve(c, i, known, measured[i])
+            log.plans_lost[c] += network.send(c, i, published[i], listens[:, i])
+        self.plans = published
+        self.apply_controls(c)
+
+    def neighbourhood(
+        self, c: int, i: int, listens: np.ndarray, estimated: dict[int, np.ndarray]
+    ) -> Neighbourhood:
+        """UAV ``i``'s view at instant ``c``; estimates are computed once per plan and kept in
+        ``estimated`` (by the plan's id) for the other UAVs of the instant."""
+        horizon, offsets, held = self.horizon, self.offsets, self.network.held[i]
+        extension = self.scenario.communication.estimate_extension
+        heard = [int(j) for j in np.flatnonzero(listens[i])]
+        for plan in (self.plans[i], *(held[j] for j in heard)):
+            if id(plan) not in estimated:
+                estimated[id(plan)] = estimate_positions(
+                    plan, c, horizon + 1, self.period, extension
+                )
+        own = estimated[id(self.plans[i])]
+        others = (
+            np.stack([estimated[id(held[j])] for j in heard])
+            if heard
+            else np.zeros((0, horizon + 1, 2))
+        )  # (J, H + 1, 2)
+        desired_relative = np.transpose(
+            offsets[c : c + horizon + 1, i][:, None] - offsets[c : c + horizon + 1, heard],
+            (1, 0, 2),
+        )  # (J, H + 1, 2)
+        group_offsets = (
+            offsets[c : c + horizon + 1, [i, *heard]].sum(axis=1) if self.group_centre else None
+        )
+        return Neighbourhood(heard, own, others, desired_relative, group_offsets)
+
+    def trigger_decision(self, c: int, i: int, known: Neighbourhood) -> TriggerDecision:
+        """Which of the trigger's conditions hold for UAV ``i`` at instant ``c``; at c = 0 no UAV
+        has a plan of its own yet (logged as expiry)."""
+        if c == 0:
+            return TriggerDecision(False, False, False, True)
+        trigger, horizon, lookahead = self.scenario.trigger, self.horizon, self.lookahead
+        lower, upper = self.bounds[i]
+        window = slice(0, lookahead + 1)
+        own_plan = self.plans[i]
+        group_offsets = known.group_offsets
+        return TriggerDecision(
+            distance=distance_condition(
+                known.own[window],
+                known.others[:, window],
+                known.desired_relative[:, window],
+                trigger.eps_p,
+            ),
+            tracking=tracking_condition(
+                known.own[window],
+                known.others[:, window],
+                self.reference[c : c + lookahead + 1],
+                centre_group_size(self.n_uav, len(known.heard), self.group_centre),
+                trigger.eps_o,
+                None if group_offsets is None else group_offsets[window],
+            ),
+            control=c - own_plan.start_step < horizon
+            and control_condition(
+                own_plan.controls[c - own_plan.start_step], lower, upper, trigger.eta
+            ),
+            expiry=expiry_condition(c - own_plan.start_step, horizon),
+        )
+
+    def solve(self, c: int, i: int, known: Neighbourhood, measured: np.ndarray) -> Plan:
+        """UAV ``i``'s new plan at instant ``c`` from its ``measured`` state, warm-started
+        from its shifted previous plan (which it keeps if the solve fails); logs the solve."""
+        log, horizon = self.log, self.horizon
+        solve_start = time.perf_counter()
+        problem = LocalProblem(
+            self.scenario,
+            i,
+            measured,
+            np.ascontiguousarray(known.others[:, 1:]),
+            known.desired_relative[:, 1:],
+            self.reference[c + 1 : c + horizon + 1],
+            None if known.group_offsets is None else known.group_offsets[1:],
+        )
+        warm_start = problem.decision_from_controls(shifted_controls(self.plans[i], c))
+        result = self.optimizer.minimize(
+            problem, problem.bounds, self.streams.uavs[i], self.budget, warm_start
+        )
+        decision = result.x
+        if not result.success:  # a failed solve falls back to the shifted previous plan
+            decision = warm_start
+            log.solve_failed[c, i] = True
+        plan = problem.plan(decision, c)
+        log.solve_time_s[c, i] = time.perf_counter() - solve_start
+        log.solved[c, i] = True
+        log.nfev[c, i] = result.nfev
+        log.solve_cost[c, i] = result.fun
+        log.plan_at_bound[c, i] = at_bound(decision, problem.bounds.lower, problem.bounds.upper)
+        return plan
+
+    def apply_controls(self, c: int) -> None:
+        """Every UAV applies its plan's control over the period; the plant moves to ``c + 1``."""
+        log = self.log
+        for i in range(self.n_uav):
+            log.controls[c, i] = self.plans[i].controls[c - self.plans[i].start_step]
+        log.states[c + 1], log.wind[c] = self.disturbances.step(log.states[c], log.controls[c])
+
+    def trace(self, optimizer_name: str, seed: int, wall_time_s: float) -> Trace:
+        """The run's :class:`Trace`."""
+        log, n_steps = self.log, self.scenario.timing.n_steps
+        return Trace(
+            scenario=self.scenario,
+            optimizer=optimizer_name,
+            trigger=self.trigger_on,
+            seed=seed,
+            times=self.times[: n_steps + 1],
+            states=log.states,
+            controls=log.controls,
+            solved=log.solved,
+            reasons=log.reasons,
+            solve_time_s=log.solve_time_s,
+            nfev=log.nfev,
+            solve_cost=log.solve_cost,
+            reference=self.reference[: n_steps + 1],
+            reference_heading=self.heading[: n_steps + 1],
+            desired_offsets=self.offsets[: n_steps + 1],
+            wall_time_s=wall_time_s,
+            solve_failed=log.solve_failed,
+            plan_at_bound=log.plan_at_bound,
+            deadline_s=None if self.budget is None else self.budget.deadline_s,
+            neighbours=log.neighbours,
+            plans_lost=log.plans_lost,
+            plans_late=log.plans_late,
+            wind=log.wind,
+        )

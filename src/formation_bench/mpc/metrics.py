@@ -1,10 +1,13 @@
 """Metrics of one closed-loop run, computed from its :class:`~formation_bench.mpc.loop.Trace`.
 
+
 :class:`Metrics` declares every metric once: its meaning, unit, whether it is a timing (and
 so differs between two runs of the same thing), and whether it is one value per run or one per
-UAV pair, UAV or trigger condition. :meth:`Metrics.columns` names every value as a column
-(``distance_error_max_m_d12``, ``solves_uav1``, ...); ``metrics.json``, the results store, the
-report and the notebook all read those columns.
+UAV pair, UAV or trigger condition; and how it is shown: its axis label, which values are
+better, whether its axis may be logarithmic, and whether (and where) it is a headline metric.
+:meth:`Metrics.columns` names every value as a column (``distance_error_max_m_d12``,
+``solves_uav1``, ...); ``metrics.json``, the results store, the report, the figures and the
+notebook all read those columns and :func:`metric_infos`.
 """
 
 from __future__ import annotations
@@ -107,8 +110,8 @@ def closed_loop_cost(trace: Trace, instants: slice | np.ndarray = slice(None)) -
     formation = np.sum(relative_error**2, axis=(1, 2, 3))  # i == j terms are zero
     centre_error = positions.mean(axis=1) - trace.reference[1:]
     tracking = scenario.n_uav * np.sum(centre_error**2, axis=1)
-    rate = scenario.w_dst * formation + scenario.w_trj * tracking
-    return float(scenario.period_s * np.sum(rate[instants]))
+    rate = scenario.weights.w_dst * formation + scenario.weights.w_trj * tracking
+    return float(scenario.timing.period_s * np.sum(rate[instants]))
 
 
 def settling_index(trace: Trace, tracking: np.ndarray, errors: np.ndarray) -> int | None:
@@ -119,8 +122,10 @@ def settling_index(trace: Trace, tracking: np.ndarray, errors: np.ndarray) -> in
     of the trace, at every instant; the pairs are :func:`graph_pairs`."""
     scenario = trace.scenario
     desired = scenario.desired_distances()
-    inside = tracking <= scenario.settling_tracking_band_m
-    outside_band = (errors > scenario.settling_distance_band * desired) & graph_pairs(trace)
+    inside = tracking <= scenario.evaluation.settling_tracking_band_m
+    outside_band = (
+        errors > scenario.evaluation.settling_distance_band * desired
+    ) & graph_pairs(trace)
     inside &= ~outside_band.any(axis=(1, 2))
     outside = np.flatnonzero(~inside)
     if outside.size == 0:
@@ -142,7 +147,7 @@ def control_effort(trace: Trace) -> np.ndarray:
     scenario = trace.scenario
     bounds = [scenario.control_bounds_of(i) for i in range(scenario.n_uav)]
     scale = np.array([np.maximum(np.abs(lower), np.abs(upper)) for lower, upper in bounds])
-    return scenario.period_s * np.sum((trace.controls / scale) ** 2, axis=(0, 2))
+    return scenario.timing.period_s * np.sum((trace.controls / scale) ** 2, axis=(0, 2))
 
 
 def segment_min_distance(start: np.ndarray, end: np.ndarray) -> np.ndarray:
@@ -190,12 +195,12 @@ def separation_at(positions: np.ndarray) -> np.ndarray:
 
 def collision_periods(trace: Trace) -> np.ndarray:
     """:func:`collision_periods_at` of the trace, against ``safety_radius_m``."""
-    return collision_periods_at(trace.states[:, :, :2], trace.scenario.safety_radius_m)
+    return collision_periods_at(trace.states[:, :, :2], trace.scenario.safety.safety_radius_m)
 
 
 def obstacle_periods(trace: Trace) -> np.ndarray:
     """:func:`obstacle_periods_at` of the trace and its scenario's obstacles."""
-    return obstacle_periods_at(trace.states[:, :, :2], trace.scenario.obstacles)
+    return obstacle_periods_at(trace.states[:, :, :2], trace.scenario.safety.obstacles)
 
 
 def separation_over_time(trace: Trace) -> np.ndarray:
@@ -223,9 +228,50 @@ class Per(enum.Enum):
     """A list with one value per solve, in one column named as the field."""
 
 
-def metric(doc: str, unit: str, *, per: Per = Per.RUN, timing: bool = False) -> Any:
-    """Declare a field of :class:`Metrics`: what it measures, its unit and its layout."""
-    return dataclasses.field(metadata={"doc": doc, "unit": unit, "per": per, "timing": timing})
+class Better(enum.Enum):
+    """Which values of a metric are the better ones."""
+
+    LOWER = "lower"
+    """Errors, costs, times, counts of solves and faults: the lowest value is the best."""
+    HIGHER = "higher"
+    """The lowest value is the worst (the smallest separation of two UAVs)."""
+    NEITHER = "neither"
+    """A description of the run that ranks nothing (which trigger condition held)."""
+
+
+def metric(
+    doc: str,
+    unit: str,
+    *,
+    per: Per = Per.RUN,
+    timing: bool = False,
+    label: str | None = None,
+    better: Better = Better.LOWER,
+    log_scale: bool = False,
+    headline: int | None = None,
+) -> Any:
+    """Declare a field of :class:`Metrics`.
+
+    ``doc``: what it measures; ``unit``: its unit; ``per``: its layout (:class:`Per`);
+    ``timing``: a wall-clock time (differs between two runs of the same thing).
+    How it is shown: ``label`` is its axis label, unit included (without one, the column's
+    name and ``unit``); ``better``: which values are better (:class:`Better`);
+    ``log_scale``: its values may spread over orders of magnitude, so a figure draws a log
+    axis when they do; ``headline``: its place (1 first) among the headline metrics, which
+    the report shows on the terminal and plots, None when it is not one.
+    """
+    return dataclasses.field(
+        metadata={
+            "doc": doc,
+            "unit": unit,
+            "per": per,
+            "timing": timing,
+            "label": label,
+            "better": better,
+            "log_scale": log_scale,
+            "headline": headline,
+        }
+    )
 
 
 @dataclass(frozen=True)
@@ -233,10 +279,16 @@ class Metrics:
     """The metrics of one closed-loop run. Errors are taken after the settle time."""
 
     tracking_error_max_m: float = metric(
-        "largest distance of the formation centre from the reference after the settle time", "m"
+        "largest distance of the formation centre from the reference after the settle time",
+        "m",
+        label="tracking error max after settling (m)",
+        headline=2,
     )
     tracking_error_rms_m: float = metric(
-        "root mean square of that distance after the settle time", "m"
+        "root mean square of that distance after the settle time",
+        "m",
+        label="tracking error RMS after settling (m)",
+        headline=3,
     )
     distance_error_max_m: dict[str, float] = metric(
         "largest difference between a UAV pair's actual and desired distance after the settle time",
@@ -248,32 +300,52 @@ class Metrics:
         "(every pair on the complete graph, so on a partial graph it may be below a named "
         "pair's distance_error_max_m)",
         "m",
+        label="largest distance error after settling (m)",
+        headline=4,
     )
     solves: tuple[int, ...] = metric(
         "solves of a UAV over the run (one per instant without the trigger)", "solves", per=Per.UAV
     )
-    solves_total: int = metric("solves of all UAVs over the run", "solves")
+    solves_total: int = metric(
+        "solves of all UAVs over the run",
+        "solves",
+        label="solves per run, all UAVs",
+        headline=8,
+    )
     trigger: dict[str, int] = metric(
         "solves at which a trigger condition held (several may hold at one solve; the first "
         "solve of every UAV counts as expiry)",
         "solves",
         per=Per.CONDITION,
+        better=Better.NEITHER,
     )
     closed_loop_cost: float = metric(
         "eq. (11) summed over the UAVs and integrated along the flown trajectory from t = 0",
         "cost",
+        label="closed-loop cost from t = 0, eq. (11) summed (m² s)",
+        log_scale=True,
     )
     transient_cost: float = metric(
-        "the part of closed_loop_cost before the settle time (the start-up)", "cost"
+        "the part of closed_loop_cost before the settle time (the start-up)",
+        "cost",
+        label="transient cost, eq. (11) before settling (m² s)",
+        log_scale=True,
+        headline=5,
     )
     steady_state_cost: float = metric(
-        "the part of closed_loop_cost from the settle time on (the steady state)", "cost"
+        "the part of closed_loop_cost from the settle time on (the steady state)",
+        "cost",
+        label="steady-state cost, eq. (11) after settling (m² s)",
+        log_scale=True,
+        headline=1,
     )
     settling_time_s: float = metric(
         "first time from which every pair's distance error stays within "
         "settling_distance_band of its desired distance and the tracking error within "
         "settling_tracking_band_m to the end; NaN if the end is outside",
         "s",
+        label="settling time (s)",
+        headline=6,
     )
     tracking_error_max_settled_m: float = metric(
         "largest distance of the formation centre from the reference from the run's own "
@@ -290,24 +362,35 @@ class Metrics:
         "root mean square of the distance errors of the communication graph's pairs after the "
         "settle time (every pair on the complete graph)",
         "m",
+        label="distance error RMS, graph pairs (m)",
     )
     min_separation_m: float = metric(
-        "smallest distance between two UAVs at the update instants", "m"
+        "smallest distance between two UAVs at the update instants",
+        "m",
+        label="smallest separation of two UAVs (m)",
+        better=Better.HIGHER,
+        headline=7,
     )
     collisions: int = metric(
         "times a UAV pair came closer than safety_radius_m (straight lines between instants; "
         "a stay of several periods counts once)",
         "events",
+        label="collisions per run (pairs within the safety radius)",
     )
     collision_time_s: float = metric(
         "time UAV pairs spent closer than safety_radius_m, summed over the pairs (whole periods)",
         "s",
+        label="time pairs spent within the safety radius (s)",
     )
     obstacle_intrusions: int = metric(
-        "times a UAV entered an obstacle's radius (straight lines between instants)", "events"
+        "times a UAV entered an obstacle's radius (straight lines between instants)",
+        "events",
+        label="obstacle intrusions per run",
     )
     obstacle_time_s: float = metric(
-        "time UAVs spent inside obstacles, summed over the UAVs (whole periods)", "s"
+        "time UAVs spent inside obstacles, summed over the UAVs (whole periods)",
+        "s",
+        label="time UAVs spent inside obstacles (s)",
     )
     plans_sent: int = metric("plans sent over the links (one per listener of a new plan)", "plans")
     plans_lost: int = metric("plans the links lost", "plans")
@@ -323,7 +406,13 @@ class Metrics:
     solves_at_bound_share: float = metric(
         "share of solves whose published plan has a control at one of its bounds", "fraction"
     )
-    nfev_total: int = metric("cost evaluations of all solves", "evaluations")
+    nfev_total: int = metric(
+        "cost evaluations of all solves",
+        "evaluations",
+        label="objective evaluations per run",
+        log_scale=True,
+        headline=10,
+    )
     solve_failures: int = metric(
         "solves whose optimiser reported failure (the UAV kept its shifted plan)", "solves"
     )
@@ -333,7 +422,14 @@ class Metrics:
         "solves",
         timing=True,
     )
-    solve_time_median_s: float = metric("median wall time of a solve", "s", timing=True)
+    solve_time_median_s: float = metric(
+        "median wall time of a solve",
+        "s",
+        timing=True,
+        label="median solve time (s)",
+        log_scale=True,
+        headline=9,
+    )
     solve_time_p95_s: float = metric("95th percentile of a solve's wall time", "s", timing=True)
     solve_time_max_s: float = metric("longest solve", "s", timing=True)
     solve_times_s: tuple[float, ...] = metric(
@@ -365,6 +461,17 @@ class MetricInfo:
     unit: str
     per: Per
     timing: bool
+    label: str | None
+    better: Better
+    log_scale: bool
+    headline: int | None
+
+    def label_of(self, column: str) -> str:
+        """Axis label of one of its columns: the declared label of the metric's own column,
+        else the column's name and the unit (``distance_error_max_m_d12 (m)``)."""
+        if column == self.name and self.label is not None:
+            return self.label
+        return f"{column} ({self.unit})"
 
     def owns(self, column: str) -> bool:
         """Whether ``column`` holds a value of this metric."""
@@ -392,13 +499,33 @@ def metric_of(column: str) -> MetricInfo | None:
     return None
 
 
+def column_label(column: str) -> str:
+    """Axis label of a column: :meth:`MetricInfo.label_of` for a metric's column, else the
+    column's name."""
+    info = metric_of(column)
+    return info.label_of(column) if info is not None else column
+
+
+def log_scale(column: str) -> bool:
+    """Whether a column holds a metric declared with ``log_scale``."""
+    info = metric_of(column)
+    return info is not None and info.log_scale
+
+
+def headline_metrics() -> tuple[str, ...]:
+    """The headline metrics, in their declared places: printed on the terminal and plotted
+    by the report, which holds every metric in its files."""
+    ranked = sorted((i.headline, i.name) for i in metric_infos() if i.headline is not None)
+    return tuple(name for _, name in ranked)
+
+
 def compute_metrics(trace: Trace) -> Metrics:
     """The metrics of a run."""
     scenario = trace.scenario
-    settled = trace.times >= scenario.settle_time_s - 1e-9
+    settled = trace.times >= scenario.evaluation.settle_time_s - 1e-9
     if not np.any(settled):
         raise ValueError(
-            f"settle_time_s={scenario.settle_time_s} is after the end of the run "
+            f"settle_time_s={scenario.evaluation.settle_time_s} is after the end of the run "
             f"({trace.times[-1]:.2f} s)"
         )
     tracking_all, pair_errors = tracking_error(trace), pair_distance_errors(trace)
@@ -410,7 +537,7 @@ def compute_metrics(trace: Trace) -> Metrics:
     distances = {name: float(err[settled].max()) for name, err in errors.items()}
     solves = tuple(int(n) for n in trace.solved.sum(axis=0))
     by_condition = trace.reasons[trace.solved].sum(axis=0)
-    steady = trace.times[1:] >= scenario.settle_time_s - 1e-9
+    steady = trace.times[1:] >= scenario.evaluation.settle_time_s - 1e-9
     settled_from = settling_index(trace, tracking_all, pair_errors)
 
     return Metrics(
@@ -439,9 +566,9 @@ def compute_metrics(trace: Trace) -> Metrics:
         else math.nan,
         min_separation_m=min_separation(trace),
         collisions=_events(collisions),
-        collision_time_s=float(collisions.sum() * scenario.period_s),
+        collision_time_s=float(collisions.sum() * scenario.timing.period_s),
         obstacle_intrusions=_events(intrusions),
-        obstacle_time_s=float(intrusions.sum() * scenario.period_s),
+        obstacle_time_s=float(intrusions.sum() * scenario.timing.period_s),
         plans_sent=int(plans_sent_at(trace.solved, listened(trace)).sum()),
         plans_lost=int(trace.plans_lost.sum()),
         plans_late=int(trace.plans_late.sum()),

@@ -27,7 +27,8 @@ from formation_bench.mpc.scenario import CommunicationGraph, Scenario
 def listening(scenario: Scenario, positions: np.ndarray) -> np.ndarray:
     """``(N, N)`` bool: ``[i, j]`` when UAV i listens to UAV j at positions ``(N, 2)``."""
     n_uav = positions.shape[0]
-    graph = scenario.graph
+    communication = scenario.communication
+    graph = communication.graph
     if graph == CommunicationGraph.COMPLETE:
         return ~np.eye(n_uav, dtype=bool)
     if graph == CommunicationGraph.RING:
@@ -39,8 +40,8 @@ def listening(scenario: Scenario, positions: np.ndarray) -> np.ndarray:
     distance = np.linalg.norm(positions[:, None] - positions[None], axis=-1)
     np.fill_diagonal(distance, np.inf)
     if graph == CommunicationGraph.RANGE:
-        return distance <= scenario.graph_range_m
-    nearest = np.argsort(distance, axis=1, kind="stable")[:, : scenario.graph_neighbours]
+        return distance <= communication.graph_range_m
+    nearest = np.argsort(distance, axis=1, kind="stable")[:, : communication.graph_neighbours]
     adjacency = np.zeros((n_uav, n_uav), dtype=bool)
     np.put_along_axis(adjacency, nearest, True, axis=1)
     return adjacency
@@ -77,17 +78,17 @@ class Network:
     def advance_links(self) -> None:
         """Draw every link's loss state and delay jitter for this instant."""
         scenario, n_uav = self.scenario, self.n_uav
-        if scenario.packet_loss > 0:
+        if scenario.communication.packet_loss > 0:
             draw = self.rng.random((n_uav, n_uav))
-            loss, rho = scenario.packet_loss, scenario.loss_correlation
+            loss, rho = scenario.communication.packet_loss, scenario.communication.loss_correlation
             if not self._started:
                 chance = np.full((n_uav, n_uav), loss)  # the chain's stationary share
             else:
                 chance = np.where(self.lost_state, loss + rho * (1.0 - loss), loss * (1.0 - rho))
             self.lost_state = draw < chance
-        if scenario.delay_jitter_steps > 0:
+        if scenario.communication.delay_jitter_steps > 0:
             self.extra_delay = self.rng.integers(
-                0, scenario.delay_jitter_steps + 1, size=(n_uav, n_uav)
+                0, scenario.communication.delay_jitter_steps + 1, size=(n_uav, n_uav)
             )
         self._started = True
 
@@ -110,7 +111,7 @@ class Network:
         """Send ``sender``'s plan made at ``step`` to the UAVs in the bool mask ``listeners``;
         returns the bool mask of receivers whose copy was lost."""
         lost = listeners & self.lost_state[:, sender]
-        nominal = step + 1 + self.scenario.delay_steps
+        nominal = step + 1 + self.scenario.communication.delay_steps
         for receiver in np.flatnonzero(listeners & ~lost):
             arrival = nominal + int(self.extra_delay[receiver, sender])
             self.in_flight.append(Packet(arrival, sender, int(receiver), plan, arrival > step + 1))

@@ -52,10 +52,10 @@ def coasting_plan(state: np.ndarray, start_step: int, scenario: Scenario) -> Pla
     At t0 no plan has been exchanged; each UAV then assumes its neighbours
     keep their current speed and heading.
     """
-    controls = np.zeros((scenario.horizon_steps, 2))
-    return Plan(
-        start_step, controls, rollout(state, controls, scenario.period_s, scenario.rk4_substeps)
-    )
+    timing = scenario.timing
+    controls = np.zeros((timing.horizon_steps, 2))
+    states = rollout(state, controls, timing.period_s, timing.rk4_substeps)
+    return Plan(start_step, controls, states)
 
 
 def estimate_positions(
@@ -94,9 +94,10 @@ def decision_space(scenario: Scenario, uav: int = 0) -> tuple[np.ndarray, Bounds
     building them each time cost 33 µs, a tenth of an ``ltv-osqp`` solve. The
     block map stays writable because numba compiles read-only arrays separately.
     """
-    block_of_step = block_map(scenario.horizon_steps, scenario.n_blocks)
+    timing = scenario.timing
+    block_of_step = block_map(timing.horizon_steps, timing.n_blocks)
     lower, upper = scenario.control_bounds_of(uav)
-    bounds = Bounds(np.tile(lower, scenario.n_blocks), np.tile(upper, scenario.n_blocks))
+    bounds = Bounds(np.tile(lower, timing.n_blocks), np.tile(upper, timing.n_blocks))
     return block_of_step, bounds
 
 
@@ -104,9 +105,10 @@ def decision_space(scenario: Scenario, uav: int = 0) -> tuple[np.ndarray, Bounds
 def scenario_penalties(scenario: Scenario) -> Penalties:
     """The scenario's penalties as the cost kernel reads them (obstacle radii grown by the
     margin); shared, do not modify. Built once per scenario, not at every solve."""
-    obstacles = np.asarray(scenario.obstacles, dtype=np.float64).reshape(-1, 3).copy()
-    obstacles[:, 2] += scenario.obstacle_margin_m
-    return Penalties(scenario.w_collision, scenario.safety_radius_m, obstacles, scenario.w_obstacle)
+    safety = scenario.safety
+    obstacles = np.asarray(safety.obstacles, dtype=np.float64).reshape(-1, 3).copy()
+    obstacles[:, 2] += safety.obstacle_margin_m
+    return Penalties(safety.w_collision, safety.safety_radius_m, obstacles, safety.w_obstacle)
 
 
 def centre_group_size(n_uav: int, n_neighbours: int, group_centre: bool) -> int:
@@ -149,7 +151,7 @@ class LocalProblem:
         group = self.centre_group
         self._distance_targets = np.ascontiguousarray(neighbour_positions + desired_relative)
         self._centre_target = np.ascontiguousarray(group * reference - self.centre_neighbour_sum)
-        self._w_centre = scenario.w_trj / group**2
+        self._w_centre = scenario.weights.w_trj / group**2
 
     @property
     def centre_group(self) -> int:
@@ -186,10 +188,10 @@ class LocalProblem:
     def packed(self) -> np.ndarray:
         """The problem as :func:`~formation_bench.mpc.cost.pack_problem` lays it out: what the
         cost kernel reads, called from Python or through :attr:`compiled`."""
-        scenario = self.scenario
+        timing, weights = self.scenario.timing, self.scenario.weights
         return pack_problem(
-            self.state, self.block_of_step, scenario.period_s, scenario.rk4_substeps,
-            self._distance_targets, self._centre_target, scenario.w_dst, self._w_centre,
+            self.state, self.block_of_step, timing.period_s, timing.rk4_substeps,
+            self._distance_targets, self._centre_target, weights.w_dst, self._w_centre,
             np.ascontiguousarray(self.neighbour_positions, dtype=np.float64), self.penalties,
         )  # fmt: skip
 
@@ -207,11 +209,11 @@ class LocalProblem:
 
     def reference_cost(self, decision: np.ndarray) -> float:
         """Eq. (14) for one decision vector by the plain reference implementation."""
-        scenario = self.scenario
+        scenario, timing, weights = self.scenario, self.scenario.timing, self.scenario.weights
         return reference_cost(
-            decision, self.state, self.block_of_step, scenario.period_s, scenario.rk4_substeps,
+            decision, self.state, self.block_of_step, timing.period_s, timing.rk4_substeps,
             self.neighbour_positions, self.desired_relative, self.reference,
-            scenario.w_dst, scenario.w_trj, scenario.n_uav, self.centre_offset_sum,
+            weights.w_dst, weights.w_trj, scenario.n_uav, self.centre_offset_sum,
             self.penalties.w_collision, self.penalties.safety_radius, self.penalties.obstacles,
             self.penalties.w_obstacle,
         )  # fmt: skip
@@ -222,7 +224,7 @@ class LocalProblem:
 
     def decision_from_controls(self, controls: np.ndarray) -> np.ndarray:
         """Block averages of per-period controls ``(H, 2)``: the warm-start decision."""
-        n_blocks = self.scenario.n_blocks
+        n_blocks = self.scenario.timing.n_blocks
         sums = np.zeros((n_blocks, 2))
         np.add.at(sums, self.block_of_step, controls)
         counts = np.bincount(self.block_of_step, minlength=n_blocks)[:, None]
@@ -231,5 +233,6 @@ class LocalProblem:
     def plan(self, decision: np.ndarray, start_step: int) -> Plan:
         """The plan a decision vector stands for, starting at ``start_step``."""
         controls = self.controls(decision)
-        states = rollout(self.state, controls, self.scenario.period_s, self.scenario.rk4_substeps)
+        timing = self.scenario.timing
+        states = rollout(self.state, controls, timing.period_s, timing.rk4_substeps)
         return Plan(start_step, controls, states)

@@ -1,4 +1,10 @@
-"""Scenarios: everything the DMPC harness needs, as one validated dataclass.
+"""Scenarios: everything the DMPC harness needs, as one validated dataclass, and their registry.
+
+A :class:`Scenario` holds the formation (initial states, offsets, reference path) and its
+settings in named groups (:mod:`formation_bench.mpc.scenario_groups`): ``timing``,
+``limits``, ``weights``, ``trigger``, ``evaluation``, ``communication``, ``disturbances`` and
+``safety``. A setting's name is unique across the groups, so ``with_overrides`` and
+``get_scenario`` take it flat (``n_steps=3``) or with its group (``timing.n_steps``).
 
 The default is the paper's Section 3 scenario; the choices the paper leaves
 open (reference path, formation frame, estimate extension, decision blocking,
@@ -8,87 +14,88 @@ weights) are fields with documented defaults, so a sweep can vary them.
 from __future__ import annotations
 
 import dataclasses
-import enum
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from formation_bench.fields import setting, validate_fields
+from formation_bench.mpc.formations import (
+    FormationShape,
+    formation_offsets,
+    scattered_initial_states,
+)
 from formation_bench.mpc.reference import REFERENCE_PATHS, ReferencePath
+from formation_bench.mpc.scenario_groups import (
+    MAX_ACCEL_M_S2,
+    CommunicationGraph,
+    CommunicationSettings,
+    ControlLimits,
+    CostWeights,
+    DisturbanceSettings,
+    EstimateExtension,
+    EvaluationSettings,
+    FormationFrame,
+    SafetySettings,
+    SettingGroup,
+    TimingSettings,
+    TriggerSettings,
+    check_settings,
+    check_within,
+    is_number,
+    number_array,
+)
 from formation_bench.plugins import SCENARIO_GROUP, Registry
 
-
-class FormationFrame(enum.StrEnum):
-    """Frame in which the formation offsets are fixed."""
-
-    PATH = "path"
-    """Offsets turn with the reference path's heading (x forward, y left)."""
-    WORLD = "world"
-    """Offsets are fixed in the world frame."""
-
-
-class CommunicationGraph(enum.StrEnum):
-    """Which UAVs each UAV listens to (its neighbours) at an update instant."""
-
-    COMPLETE = "complete"
-    """Every other UAV (the paper)."""
-    RING = "ring"
-    """The UAVs before and after it in index order (1 with 2 and N, and so on); fixed."""
-    K_NEAREST = "k-nearest"
-    """Its ``graph_neighbours`` nearest UAVs at the instant; changes as the UAVs move."""
-    RANGE = "range"
-    """Every UAV within ``graph_range_m`` at the instant; changes as the UAVs move."""
-
-
-class EstimateExtension(enum.StrEnum):
-    """How a neighbour's estimate is extended past the end of its last plan."""
-
-    COAST = "coast"
-    """Propagate the plan's terminal state with zero control (constant speed and heading)."""
-    HOLD = "hold"
-    """Hold the plan's terminal position (the literal reading of Section 2.2)."""
+__all__ = [
+    "GROUPS",
+    "GROUP_OF",
+    "MAX_ACCEL_M_S2",
+    "PAPER",
+    "SCENARIOS",
+    "SWARM_SIZES",
+    "TOP_LEVEL",
+    "CommunicationGraph",
+    "CommunicationSettings",
+    "ControlLimits",
+    "CostWeights",
+    "DisturbanceSettings",
+    "EstimateExtension",
+    "EvaluationSettings",
+    "FormationFrame",
+    "SafetySettings",
+    "Scenario",
+    "TimingSettings",
+    "TriggerSettings",
+    "get_scenario",
+    "register_scenario",
+    "swarm_scenario",
+]
 
 
-MAX_ACCEL_M_S2 = 100.0
-"""Largest acceleration bound, m/s^2 (about 10 g). The paper's UAVs are bounded at 7. Measured
-on its scenario (seed 0, trigger on, largest tracking error): +-100 still tracks within
-1.2 m, +-1000 loses the reference by 17 m (PSO) to 147 m (modified BSO), +-1e300 by 310 m."""
+_GROUP_VALUES = "the group (see its class), or a table of some of its fields"
+"""What a group field takes, in words."""
 
 
-def _rows(name: str, value: object, width: int, count: int | None) -> np.ndarray:
-    """``value`` as a ``(count, width)`` finite array (any count if None), or a ValueError
-    naming the field."""
-    if not isinstance(value, tuple | list):
-        raise ValueError(f"Scenario.{name} must be a tuple of {width}-tuples, got {value!r}")
-    rows = np.zeros((0, width))
-    if len(value):
-        rows = _number_array(name, value).reshape(len(value), -1)
-    if rows.shape[1] != width or (count is not None and rows.shape[0] != count):
-        wanted = f"{count} " if count is not None else ""
-        raise ValueError(
-            f"Scenario.{name} must hold {wanted}{width}-tuples of numbers, got {value!r}"
-        )
-    if not np.all(np.isfinite(rows)):
-        raise ValueError(f"Scenario.{name} must be finite, got {value!r}")
-    return rows
-
-
-def _is_number(value: object) -> bool:
-    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(
-        value, bool | np.bool_
+def _as_group(owner: str, name: str, value: object) -> SettingGroup:
+    """The group field ``name``'s value: a group, or a table of some of its fields (the others
+    keep their defaults)."""
+    group_class = GROUPS[name]
+    if isinstance(value, group_class):
+        return value
+    if isinstance(value, Mapping):
+        unknown = sorted(set(value) - set(_field_names(group_class)))
+        if unknown:
+            raise ValueError(
+                f"unknown field(s) {', '.join(map(str, unknown))} of scenario group {name}; "
+                f"its fields: {', '.join(_field_names(group_class))}"
+            )
+        return group_class(**value)
+    raise ValueError(
+        f"{owner}.{name} must be a {group_class.__name__} or a table of its fields, got {value!r}"
     )
-
-
-def _number_array(name: str, value: object) -> np.ndarray:
-    """``value`` as a float array, or a ValueError naming the field."""
-    try:
-        return np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"Scenario.{name} must be a tuple of tuples of numbers, got {value!r}"
-        ) from None
 
 
 @dataclass(frozen=True)
@@ -129,156 +136,37 @@ class Scenario:
         doc="Where the reference path starts at t = 0, m; None = the UAVs' initial centre",
     )
     """None means the UAVs' mean initial position."""
-    period_s: float = setting(
-        0.2, low=0.0, low_open=True, doc="Control update period delta_T, seconds"
-    )
-    horizon_steps: int = setting(
-        20, low=1, high=10_000, doc="Prediction horizon in periods (Tp = horizon_steps * period_s)"
-    )
-    n_steps: int = setting(240, low=1, high=10_000_000, doc="Update instants simulated")
-    accel_bounds: tuple[float, float] = setting(
-        (-7.0, 7.0), allowed="finite (lower, upper), lower < upper",
-        doc="Bounds on the acceleration a, m/s^2",
+    timing: TimingSettings = setting(
+        TimingSettings(), check=_as_group, allowed=_GROUP_VALUES,
+        doc="Control period, horizon and its blocks, RK4 sub-steps, run length",
     )  # fmt: skip
-    turn_rate_bounds: tuple[float, float] = setting(
-        (-0.25, 0.25), allowed="finite (lower, upper), lower < upper",
-        doc="Bounds on the turn rate omega, rad/s",
+    limits: ControlLimits = setting(
+        ControlLimits(), check=_as_group, allowed=_GROUP_VALUES,
+        doc="Bounds on the controls, common or per UAV",
     )  # fmt: skip
-    w_dst: float = setting(
-        1.0, low=0.0, doc="Weight of the relative-position (formation) term of eq. (14)"
-    )
-    w_trj: float = setting(
-        3.0, low=0.0, doc="Weight of the formation-centre tracking term of eq. (14)"
-    )
-    """The default 3 (with w_dst = 1) was chosen by measurement: see docs/design.md."""
-    n_blocks: int = setting(
-        5, low=1, high="horizon_steps",
-        doc="Control blocks per horizon: the decision vector holds 2 * n_blocks numbers",
+    weights: CostWeights = setting(
+        CostWeights(), check=_as_group, allowed=_GROUP_VALUES,
+        doc="Weights of the local cost's terms, eq. (14)",
     )  # fmt: skip
-    """Each control is held over ``horizon_steps / n_blocks`` periods. The default 5 (d = 10)
-    was chosen by measurement: see docs/design.md."""
-    estimate_extension: EstimateExtension = setting(
-        EstimateExtension.COAST,
-        doc="How neighbour estimates are extended past the end of their last plan",
-    )
-    eps_p: float = setting(
-        2.0, low=0.0,
-        doc="Trigger threshold on the predicted relative-position error, eq. (15), metres",
+    trigger: TriggerSettings = setting(
+        TriggerSettings(), check=_as_group, allowed=_GROUP_VALUES,
+        doc="The event trigger, eqs. (15)-(17)",
     )  # fmt: skip
-    eps_o: float = setting(
-        2.0, low=0.0,
-        doc="Trigger threshold on the formation-centre tracking error, eq. (16), metres",
+    evaluation: EvaluationSettings = setting(
+        EvaluationSettings(), check=_as_group, allowed=_GROUP_VALUES,
+        doc="Settle time and settling bands of the metrics",
     )  # fmt: skip
-    eta: float = setting(
-        1.0, low=0.0, high=1.0, low_open=True,
-        doc="Trigger fraction of the control bound, eq. (17)",
+    communication: CommunicationSettings = setting(
+        CommunicationSettings(), check=_as_group, allowed=_GROUP_VALUES,
+        doc="Communication graph, lost and late plans, extension of neighbour estimates",
     )  # fmt: skip
-    trigger_lookahead_steps: int | None = setting(
-        None, kind=int, optional=True, low=0, high="horizon_steps",
-        doc="Periods after t_c at which conditions (15)-(16) are checked; None = whole horizon",
+    disturbances: DisturbanceSettings = setting(
+        DisturbanceSettings(), check=_as_group, allowed=_GROUP_VALUES,
+        doc="Wind, measurement noise and model mismatch (off by default)",
     )  # fmt: skip
-    """Conditions (15)-(16) are checked on the predicted trajectories at t_c and this many
-    periods after it: None (the default) = the whole horizon, reading eq. (16)'s ``t`` as any
-    predicted time; 0 checks t_c only."""
-    settle_time_s: float = setting(
-        10.0, low=0.0,
-        doc="Metrics of tracking and formation error count from this time on, seconds",
-    )  # fmt: skip
-    rk4_substeps: int = setting(
-        1, low=1, high=1000, doc="RK4 sub-steps per control period in prediction and plant"
-    )
-    settling_distance_band: float = setting(
-        0.02, low=0.0, low_open=True,
-        doc="Settling time: every pair's distance error within this fraction of its desired "
-        "distance",
-    )  # fmt: skip
-    settling_tracking_band_m: float = setting(
-        1.0, low=0.0, low_open=True,
-        doc="Settling time: the formation centre within this distance of the reference, m",
-    )  # fmt: skip
-
-    # --- beyond the paper: every field below is off (or the paper's value) by default --------
-    graph: CommunicationGraph = setting(
-        CommunicationGraph.COMPLETE,
-        doc="Communication graph: which UAVs each UAV listens to (complete = the paper)",
-    )
-    """Each UAV's cost and trigger use only its neighbours' plans; off the complete graph the
-    formation centre is estimated from the UAV and its neighbours (docs/scenarios.md)."""
-    graph_neighbours: int = setting(
-        2, low=1, doc="k of the k-nearest graph: neighbours each UAV listens to"
-    )
-    graph_range_m: float = setting(
-        30.0, low=0.0, low_open=True, doc="Radio range of the range-limited graph, m"
-    )
-    packet_loss: float = setting(
-        0.0, low=0.0, high=1.0, high_open=True,
-        doc="Probability that a plan sent over a link is lost (long-run share)",
-    )  # fmt: skip
-    loss_correlation: float = setting(
-        0.0, low=0.0, high=1.0, high_open=True,
-        doc="Burstiness of losses: 0 independent; rho makes a link's loss state persist "
-        "(mean burst 1 / ((1 - packet_loss) (1 - rho)) periods)",
-    )  # fmt: skip
-    delay_steps: int = setting(
-        0, low=0, high=1000, doc="Whole periods by which every plan arrives late"
-    )
-    delay_jitter_steps: int = setting(
-        0, low=0, high=1000,
-        doc="Extra delay of each plan, uniform over 0 .. this many periods (seeded)",
-    )  # fmt: skip
-    wind_mean_m_s: tuple[float, float] = setting(
-        (0.0, 0.0), allowed="two finite numbers",
-        doc="Constant part of the wind (x, y), m/s: moves the plant, not the prediction",
-    )  # fmt: skip
-    gust_std_m_s: float = setting(
-        0.0, low=0.0,
-        doc="Standard deviation of each UAV's gusts per axis (Ornstein-Uhlenbeck), m/s",
-    )  # fmt: skip
-    gust_time_constant_s: float = setting(
-        2.0, low=0.0, low_open=True, doc="Correlation time of the gusts, s"
-    )
-    position_noise_std_m: float = setting(
-        0.0, low=0.0, doc="Noise on the position each UAV measures of itself, per axis, m"
-    )
-    heading_noise_std_rad: float = setting(
-        0.0, low=0.0, doc="Noise on the heading each UAV measures of itself, rad"
-    )
-    speed_noise_std_m_s: float = setting(
-        0.0, low=0.0, doc="Noise on the speed each UAV measures of itself, m/s"
-    )
-    plant_accel_gain: float = setting(
-        1.0, low=0.0, low_open=True,
-        doc="Model mismatch: the plant's acceleration is this times the commanded one",
-    )  # fmt: skip
-    plant_turn_rate_gain: float = setting(
-        1.0, low=0.0, low_open=True,
-        doc="Model mismatch: the plant's turn rate is this times the commanded one",
-    )  # fmt: skip
-    obstacles: tuple[tuple[float, float, float], ...] = setting(
-        (), allowed="(x, y, radius) triples, radius > 0",
-        doc="Circular no-fly zones (centre x m, centre y m, radius m)",
-    )  # fmt: skip
-    obstacle_margin_m: float = setting(
-        2.0, low=0.0, doc="The obstacle penalty starts this far outside an obstacle's radius, m"
-    )
-    w_obstacle: float = setting(
-        0.0, low=0.0, doc="Weight of the obstacle penalty in the local cost (0 = off)"
-    )
-    safety_radius_m: float = setting(
-        3.0, low=0.0, low_open=True,
-        doc="Two UAVs closer than this collide (metrics); the collision penalty starts here, m",
-    )  # fmt: skip
-    w_collision: float = setting(
-        0.0, low=0.0,
-        doc="Weight of the collision penalty against neighbours' estimates (0 = off)",
-    )  # fmt: skip
-    uav_accel_bounds: tuple[tuple[float, float], ...] | None = setting(
-        None, optional=True, allowed="one finite (lower, upper) per UAV, lower < upper",
-        doc="Per-UAV acceleration bounds (mixed vehicles), m/s^2; None = accel_bounds for all",
-    )  # fmt: skip
-    uav_turn_rate_bounds: tuple[tuple[float, float], ...] | None = setting(
-        None, optional=True, allowed="one finite (lower, upper) per UAV, lower < upper",
-        doc="Per-UAV turn-rate bounds (mixed vehicles), rad/s; None = turn_rate_bounds for all",
+    safety: SafetySettings = setting(
+        SafetySettings(), check=_as_group, allowed=_GROUP_VALUES,
+        doc="Obstacles, safety radius and their penalties (off by default)",
     )  # fmt: skip
 
     def __post_init__(self) -> None:
@@ -286,8 +174,8 @@ class Scenario:
         if not isinstance(self.name, str) or not self.name:
             raise ValueError(f"Scenario.name must be a non-empty string, got {self.name!r}")
         # the structured fields are checked together, after the declared ranges
-        states = _number_array("initial_states", self.initial_states)
-        offsets = _number_array("formation_offsets", self.formation_offsets)
+        states = number_array("initial_states", self.initial_states)
+        offsets = number_array("formation_offsets", self.formation_offsets)
         if states.ndim != 2 or states.shape[1] != 4 or states.shape[0] < 2:
             raise ValueError(
                 "Scenario.initial_states must be a list of at least 2 (x, y, heading, speed) "
@@ -308,86 +196,103 @@ class Scenario:
         if self.reference_start is not None and (
             not isinstance(self.reference_start, tuple | list)
             or len(self.reference_start) != 2
-            or not all(_is_number(c) for c in self.reference_start)
+            or not all(is_number(c) for c in self.reference_start)
             or not all(math.isfinite(c) for c in self.reference_start)
         ):
             raise ValueError(
                 f"Scenario.reference_start must be None or two finite numbers, "
                 f"got {self.reference_start!r}"
             )
-        for field_name in ("accel_bounds", "turn_rate_bounds"):
-            pair = getattr(self, field_name)
-            if not (
-                isinstance(pair, tuple | list)
-                and len(pair) == 2
-                and all(_is_number(v) for v in pair)
-            ):
-                raise ValueError(
-                    f"Scenario.{field_name} must be a pair (lower, upper) of numbers, got {pair!r}"
-                )
-            lo, hi = pair
-            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-                raise ValueError(
-                    f"Scenario.{field_name} must be finite (lower, upper) with lower < upper, "
-                    f"got {(lo, hi)}"
-                )
-        wind = self.wind_mean_m_s
-        if not (
-            isinstance(wind, tuple | list)
-            and len(wind) == 2
-            and all(_is_number(w) and math.isfinite(w) for w in wind)
+        self._check_across_groups()
+
+    def _check_across_groups(self) -> None:
+        """The checks that read several groups or the number of UAVs."""
+        values = self.setting_values()
+        for group_name in GROUPS:
+            # a range end naming a setting of another group (trigger_lookahead_steps)
+            check_settings(getattr(self, group_name), values)
+        limits, timing, communication = self.limits, self.timing, self.communication
+        limits.per_uav_rows(self.n_uav)
+        if (
+            communication.graph == CommunicationGraph.K_NEAREST
+            and communication.graph_neighbours >= self.n_uav
         ):
-            raise ValueError(f"Scenario.wind_mean_m_s must be two finite numbers, got {wind!r}")
-        obstacles = _rows("obstacles", self.obstacles, 3, None)
-        if np.any(obstacles[:, 2] <= 0):
-            raise ValueError(f"Scenario.obstacles radii must be > 0, got {self.obstacles!r}")
-        for field_name in ("uav_accel_bounds", "uav_turn_rate_bounds"):
-            value = getattr(self, field_name)
-            if value is None:
-                continue
-            pairs = _rows(field_name, value, 2, self.n_uav)
-            if not np.all(pairs[:, 0] < pairs[:, 1]):
-                raise ValueError(
-                    f"Scenario.{field_name} must have lower < upper for every UAV, got {value!r}"
-                )
-        if self.graph == CommunicationGraph.K_NEAREST and self.graph_neighbours >= self.n_uav:
             raise ValueError(
                 f"Scenario.graph_neighbours must be below the number of UAVs ({self.n_uav}) "
-                f"on the k-nearest graph, got {self.graph_neighbours}"
+                f"on the k-nearest graph, got {communication.graph_neighbours}"
             )
-        self._check_meaningful()
-
-    def _check_meaningful(self) -> None:
-        """Refuse values that are each allowed but together leave nothing to optimise."""
-        # the optimisers sample controls across the bounds: in a box far wider than the
-        # controls that keep a formation, almost no sample is usable and every solve keeps
-        # its warm start (with accel_bounds=(-1e300, 1e300) every applied control was 0)
-        turn_limit = math.pi / self.period_s
-        for field_name, limit, why in (
-            ("accel_bounds", MAX_ACCEL_M_S2, "about 10 g, beyond any UAV"),
-            ("uav_accel_bounds", MAX_ACCEL_M_S2, "about 10 g, beyond any UAV"),
-            ("turn_rate_bounds", turn_limit, "half a turn per period: pi / period_s"),
-            ("uav_turn_rate_bounds", turn_limit, "half a turn per period: pi / period_s"),
-        ):
-            value = getattr(self, field_name)
-            pairs = [value] if field_name in ("accel_bounds", "turn_rate_bounds") else value
-            if pairs is not None and max(abs(float(v)) for pair in pairs for v in pair) > limit:
-                raise ValueError(
-                    f"Scenario.{field_name} must be within [-{limit:.4g}, {limit:.4g}] ({why}; "
-                    "the optimisers sample controls across the bounds, so wider bounds leave "
-                    f"almost no usable control and every solve keeps its warm start), got {value!r}"
-                )
-        if self.w_dst == 0 and self.w_trj == 0:
-            raise ValueError(
-                "Scenario.w_trj must be > 0 when w_dst is 0 (with both weights 0 the cost has "
-                "no tracking and no formation term, so every plan is as good as any), got 0.0"
+        turn_limit = math.pi / timing.period_s
+        for name in ("turn_rate_bounds", "uav_turn_rate_bounds"):
+            check_within(
+                name, getattr(limits, name), turn_limit, "half a turn per period: pi / period_s"
             )
-        if self.delay_steps > 0 and self.delay_steps + 1 >= self.n_steps:
+        if communication.delay_steps > 0 and communication.delay_steps + 1 >= timing.n_steps:
             raise ValueError(
-                f"Scenario.delay_steps must be below n_steps - 1 = {self.n_steps - 1} (a plan "
+                f"Scenario.delay_steps must be below n_steps - 1 = {timing.n_steps - 1} (a plan "
                 "arrives delay_steps + 1 instants after it is sent, so no plan would reach a "
-                f"neighbour before the run ends), got {self.delay_steps}"
+                f"neighbour before the run ends), got {communication.delay_steps}"
             )
+
+    # --- the flat view: every setting by its name ---------------------------------------------
+
+    @classmethod
+    def setting_fields(cls) -> tuple[dataclasses.Field, ...]:
+        """Every setting, the groups' by their own names: the top-level fields, then each
+        group's fields, in declaration order."""
+        flat: list[dataclasses.Field] = []
+        for field in dataclasses.fields(cls):
+            if field.name in GROUPS:
+                flat.extend(dataclasses.fields(GROUPS[field.name]))
+            else:
+                flat.append(field)
+        return tuple(flat)
+
+    def setting_values(self) -> dict[str, Any]:
+        """The value of every setting of :meth:`setting_fields`, by name."""
+        values: dict[str, Any] = {}
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if field.name in GROUPS:
+                values.update((f.name, getattr(value, f.name)) for f in dataclasses.fields(value))
+            else:
+                values[field.name] = value
+        return values
+
+    def with_overrides(self, **overrides: Any) -> Scenario:
+        """A copy with settings replaced (validated): by name (``n_steps=3``), by group and
+        name (``**{"timing.n_steps": 3}``), or a whole group (``timing=TimingSettings(...)``,
+        or a table of some of its fields); unknown names are named in the error."""
+        top: dict[str, Any] = {}
+        in_group: dict[str, dict[str, Any]] = {}
+        unknown = []
+        for key, value in overrides.items():
+            group_name, _, name = key.rpartition(".")
+            home = GROUP_OF.get(name)
+            if group_name and group_name != home:
+                unknown.append(key)
+            elif home is not None:
+                in_group.setdefault(home, {})[name] = value
+            elif name in GROUPS and isinstance(value, Mapping):
+                in_group.setdefault(name, {}).update(value)
+            elif name in TOP_LEVEL or name in GROUPS:
+                top[name] = value
+            else:
+                unknown.append(key)
+        if unknown:
+            raise ValueError(
+                f"unknown scenario field(s) {', '.join(sorted(unknown))}; "
+                f"fields: {', '.join(sorted(GROUP_OF.keys() | TOP_LEVEL))} "
+                f"(or GROUP.FIELD, groups: {', '.join(GROUPS)})"
+            )
+        for group_name, changes in in_group.items():
+            group = top.get(group_name, getattr(self, group_name))
+            if isinstance(group, GROUPS[group_name]):
+                # a table of some fields is checked (and completed) as the group field's value
+                group = dataclasses.asdict(group) | changes
+            top[group_name] = group  # a value of another kind is named in the scenario's error
+        return dataclasses.replace(self, **top)
+
+    # --- derived values ----------------------------------------------------------------------
 
     @property
     def n_uav(self) -> int:
@@ -397,14 +302,14 @@ class Scenario:
     @property
     def horizon_s(self) -> float:
         """Prediction horizon Tp in seconds."""
-        return self.horizon_steps * self.period_s
+        return self.timing.horizon_s
 
     @property
     def trigger_lookahead(self) -> int:
         """Predicted periods after t_c at which conditions (15)-(16) are checked."""
-        if self.trigger_lookahead_steps is None:
-            return self.horizon_steps
-        return self.trigger_lookahead_steps
+        if self.trigger.trigger_lookahead_steps is None:
+            return self.timing.horizon_steps
+        return self.trigger.trigger_lookahead_steps
 
     @property
     def reference_path(self) -> ReferencePath:
@@ -414,26 +319,21 @@ class Scenario:
     @property
     def control_lower(self) -> np.ndarray:
         """``[a_min, omega_min]``."""
-        return np.array([self.accel_bounds[0], self.turn_rate_bounds[0]])
+        return self.limits.lower
 
     @property
     def control_upper(self) -> np.ndarray:
         """``[a_max, omega_max]``."""
-        return np.array([self.accel_bounds[1], self.turn_rate_bounds[1]])
+        return self.limits.upper
 
     def control_bounds_of(self, uav: int) -> tuple[np.ndarray, np.ndarray]:
         """``([a_min, omega_min], [a_max, omega_max])`` of UAV ``uav`` (0-based)."""
-        lower, upper = self.control_lower, self.control_upper
-        if self.uav_accel_bounds is not None:
-            lower[0], upper[0] = self.uav_accel_bounds[uav]
-        if self.uav_turn_rate_bounds is not None:
-            lower[1], upper[1] = self.uav_turn_rate_bounds[uav]
-        return lower, upper
+        return self.limits.of_uav(uav)
 
     @property
     def communication_faults(self) -> bool:
         """Whether plans can be lost or late."""
-        return self.packet_loss > 0 or self.delay_steps > 0 or self.delay_jitter_steps > 0
+        return self.communication.faults
 
     def initial_state_array(self) -> np.ndarray:
         """Initial states as an ``(N, 4)`` array."""
@@ -463,19 +363,61 @@ class Scenario:
         offsets = np.asarray(self.formation_offsets, dtype=np.float64)
         return np.linalg.norm(offsets[:, None, :] - offsets[None, :, :], axis=-1)
 
-    def with_overrides(self, **overrides: Any) -> Scenario:
-        """A copy with fields replaced (validated); unknown fields are named in the error."""
-        names = {f.name for f in dataclasses.fields(self)}
-        unknown = sorted(set(overrides) - names)
-        if unknown:
-            raise ValueError(
-                f"unknown scenario field(s) {', '.join(unknown)}; "
-                f"fields: {', '.join(sorted(names))}"
-            )
-        return dataclasses.replace(self, **overrides)
 
+def _field_names(cls: type) -> tuple[str, ...]:
+    return tuple(f.name for f in dataclasses.fields(cls))
+
+
+GROUPS: dict[str, type[SettingGroup]] = {
+    f.name: type(f.default)
+    for f in dataclasses.fields(Scenario)
+    if isinstance(f.default, SettingGroup)
+}
+"""The scenario's setting groups: field name -> group class, in declaration order."""
+TOP_LEVEL = frozenset(_field_names(Scenario)) - GROUPS.keys()
+"""The settings a scenario holds outside its groups."""
+GROUP_OF: dict[str, str] = {
+    name: group for group, cls in GROUPS.items() for name in _field_names(cls)
+}
+"""The group of every grouped setting, by the setting's name."""
+if len(GROUP_OF) + len(TOP_LEVEL) != len(Scenario.setting_fields()) or GROUP_OF.keys() & (
+    TOP_LEVEL | GROUPS.keys()
+):
+    raise TypeError("a scenario setting's name must be unique across its groups and the scenario")
 
 PAPER = Scenario()
+
+
+def swarm_scenario(
+    name: str,
+    n_uav: int,
+    *,
+    shape: FormationShape | str = FormationShape.WEDGE,
+    spacing_m: float = 10.0,
+    layout_seed: int = 2022,
+    **settings: Any,
+) -> Scenario:
+    """A scenario of ``n_uav`` UAVs in ``shape``, starting scattered around the reference start.
+
+    The initial states come from :func:`~formation_bench.mpc.formations.scattered_initial_states`
+    with a Generator seeded by ``layout_seed`` and are stored in the scenario as data;
+    ``settings`` sets any other scenario setting (``graph``, disturbances, ...), by name as in
+    :meth:`Scenario.with_overrides`.
+    """
+    offsets = formation_offsets(shape, n_uav, spacing_m)
+    states = scattered_initial_states(offsets, np.random.default_rng(layout_seed))
+    return Scenario().with_overrides(
+        name=name,
+        initial_states=tuple(tuple(float(v) for v in row) for row in states),
+        formation_offsets=tuple(tuple(float(v) for v in row) for row in offsets),
+        reference_start=(0.0, 0.0),
+        **settings,
+    )
+
+
+SWARM_SIZES = {5: FormationShape.WEDGE, 10: FormationShape.GRID, 20: FormationShape.GRID,
+               25: FormationShape.GRID}  # fmt: skip
+"""The registered swarms ``swarm-N``: number of UAVs and formation."""
 
 
 def _check_scenario(name: str, scenario: Scenario) -> None:
@@ -498,11 +440,10 @@ def register_scenario(scenario: Scenario) -> Scenario:
 
 
 register_scenario(PAPER)
-register_scenario(dataclasses.replace(PAPER, name="paper-straight", reference="straight"))
-register_scenario(dataclasses.replace(PAPER, name="paper-s-curve", reference="s-curve"))
+register_scenario(PAPER.with_overrides(name="paper-straight", reference="straight"))
+register_scenario(PAPER.with_overrides(name="paper-s-curve", reference="s-curve"))
 register_scenario(
-    dataclasses.replace(
-        PAPER,
+    PAPER.with_overrides(
         name="paper-obstacles",
         obstacles=((136.0, -4.0, 5.0), (392.0, 112.0, 5.0)),
         w_obstacle=100.0,
@@ -511,15 +452,14 @@ register_scenario(
 )
 """The paper's scenario with two no-fly zones: one on the straight leg, on the reference
 centre's line (the trailing UAV's slot), one beside the turn; both penalties on."""
+for _n, _shape in SWARM_SIZES.items():
+    register_scenario(swarm_scenario(f"swarm-{_n}", _n, shape=_shape))
 
 
 def get_scenario(name: str, /, **overrides: Any) -> Scenario:
-    """The scenario registered as ``name``, with fields replaced by ``overrides``."""
+    """The scenario registered as ``name``, with settings replaced by ``overrides`` (as in
+    :meth:`Scenario.with_overrides`)."""
     if name not in SCENARIOS:
         raise SCENARIOS.unknown(name)
     scenario = SCENARIOS[name]
     return scenario.with_overrides(**overrides) if overrides else scenario
-
-
-# the swarms are built from the formation library, which builds on Scenario: imported last
-from formation_bench.mpc import formations as _formations  # noqa: E402, F401

@@ -5,10 +5,13 @@ Every optimiser in formation-bench minimises a *batch* objective
 with all randomness drawn from a passed :class:`numpy.random.Generator`, and
 returns an :class:`OptimizeResult` (the fields follow ``scipy.optimize``).
 
-Population methods subclass :class:`PopulationOptimizer` and implement a pure
-``init``/``step`` pair over an immutable state; the base class owns the loop,
-the evaluation counting and the budget, so that no optimiser can exceed its
-evaluation budget or forget to count an evaluation.
+The population methods of formation-bench are
+:class:`~formation_bench.optimizers.ask_tell.AskTellOptimizer`: compiled ask/tell kernels over
+a named state, driven by loops that own the evaluation counting and the budget. The adapters
+of other libraries subclass :class:`PopulationOptimizer` and implement a pure
+``init``/``step`` pair over an immutable state; its loop likewise owns the counting and the
+budget, so that no optimiser can exceed its evaluation budget or forget to count an
+evaluation.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ from formation_bench.fields import (  # noqa: F401
     check_real,
     coerce_enum,
 )
-from formation_bench.optimizers.compiled import UNLIMITED, CompiledObjective, compiled_of
+from formation_bench.optimizers.compiled import UNLIMITED
 
 
 class BatchObjective(Protocol):
@@ -37,7 +40,8 @@ class BatchObjective(Protocol):
 
     An objective may also carry a ``compiled`` attribute, a
     :class:`~formation_bench.optimizers.compiled.CompiledObjective` computing the same costs;
-    optimisers with a compiled solve loop then call that instead, without Python in between.
+    optimisers that run their iterations in compiled code call that instead, without Python
+    in between.
     """
 
     def __call__(self, x: np.ndarray) -> np.ndarray: ...
@@ -101,12 +105,17 @@ class Bounds:
 class Budget:
     """How much an optimiser may spend on one solve.
 
-    At least one of the two limits must be set; the solve stops at whichever
-    is reached first, and the evaluation count never exceeds
-    ``max_evaluations``. A ``deadline_s`` also stops it once that much wall time
-    has passed since the solve began, with the best point so far: a population
-    method checks it between iterations (its initial population is always
-    evaluated), so one iteration may run past it.
+    The solve stops at whichever limit is reached first, and the evaluation count
+    never exceeds ``max_evaluations``. A ``deadline_s`` also stops it once that much
+    wall time has passed since the solve began, with the best point so far: a
+    population method checks it between iterations (its initial population is
+    always evaluated), so one iteration may run past it.
+
+    A budget with a deadline but neither limit keeps the optimiser's own limits
+    (:attr:`keeps_own_limits`); :meth:`within` completes it with them, and a solve
+    is given the completed budget. Deadlines are in seconds everywhere in the code;
+    a user-facing option in milliseconds (``--deadline-ms``, a suite's
+    ``deadline_ms``) is converted where it is read.
     """
 
     max_evaluations: int | None = None
@@ -118,8 +127,11 @@ class Budget:
     depends on the machine's speed, so its result is not repeatable bit for bit."""
 
     def __post_init__(self) -> None:
-        if self.max_evaluations is None and self.max_iterations is None:
-            raise ValueError("Budget: set max_evaluations, max_iterations, or both")
+        if self.keeps_own_limits and self.deadline_s is None:
+            raise ValueError(
+                "Budget: set max_evaluations, max_iterations, or both (a deadline_s alone keeps "
+                "the optimiser's own limits)"
+            )
         if self.max_evaluations is not None and (
             not isinstance(self.max_evaluations, int | np.integer) or self.max_evaluations < 1
         ):
@@ -139,6 +151,18 @@ class Budget:
             and self.deadline_s > 0
         ):
             raise ValueError(f"Budget.deadline_s must be a number > 0, got {self.deadline_s!r}")
+
+    @property
+    def keeps_own_limits(self) -> bool:
+        """Whether it sets neither limit (only a deadline): the optimiser's own limits apply."""
+        return self.max_evaluations is None and self.max_iterations is None
+
+    def within(self, own: Budget) -> Budget:
+        """The budget a solve runs under: this one, or, when it sets neither limit, the
+        optimiser's own budget ``own`` with this one's deadline."""
+        if not self.keeps_own_limits:
+            return self
+        return Budget(own.max_evaluations, own.max_iterations, self.deadline_s)
 
 
 @dataclass(frozen=True)
@@ -265,6 +289,12 @@ class Optimizer(abc.ABC):
     def default_budget(self) -> Budget:
         """The budget used when the caller gives none (the optimiser's own setting)."""
 
+    def solve_budget(self, budget: Budget | None) -> Budget:
+        """The budget a solve runs under: :attr:`default_budget` when ``budget`` is None, its
+        limits with ``budget``'s deadline when ``budget`` sets a deadline alone, else
+        ``budget``."""
+        return self.default_budget if budget is None else budget.within(self.default_budget)
+
     @abc.abstractmethod
     def minimize(
         self,
@@ -340,12 +370,9 @@ class PopulationOptimizer(Optimizer, Generic[StateT]):
         x0: np.ndarray | None = None,
     ) -> OptimizeResult:
         rng = check_rng(rng)
-        budget = self.default_budget if budget is None else budget
+        budget = self.solve_budget(budget)
         started = perf_counter()
         x0 = check_x0(x0, bounds)
-        compiled = compiled_of(objective)
-        if compiled is not None and self.has_compiled_loop():
-            return self.minimize_compiled(compiled, bounds, rng, budget, x0)
         counter = EvaluationCounter(objective, bounds.dim, budget.max_evaluations)
         max_iterations = self.planned_iterations(budget)
         state = self.init(counter, bounds, rng, x0, max_iterations)
@@ -391,22 +418,6 @@ class PopulationOptimizer(Optimizer, Generic[StateT]):
         return {}
 
     def has_compiled_loop(self) -> bool:
-        """True when :meth:`minimize_compiled` can solve with this configuration."""
+        """True when a compiled objective's iterations run in compiled code (see
+        :class:`~formation_bench.optimizers.ask_tell.AskTellOptimizer`)."""
         return False
-
-    def minimize_compiled(
-        self,
-        objective: CompiledObjective,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        budget: Budget,
-        x0: np.ndarray | None,
-    ) -> OptimizeResult:
-        """:meth:`minimize` with the iterations in compiled code (``x0`` already checked).
-
-        It must give the result of the Python loop to the bit, with the same draws from
-        ``rng``; ``info["objective_time_s"]`` is NaN there, since compiled code has no clock.
-        A deadline is checked in Python before every iteration, which then runs alone in
-        its compiled call.
-        """
-        raise NotImplementedError(f"{type(self).__name__} has no compiled solve loop")

@@ -6,13 +6,26 @@ re-exports them): random numbers come in as arrays of uniforms.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 from formation_bench.optimizers.clustering import lloyd_kmeans_kernel
 
 
-# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+class Clusters(NamedTuple):
+    """BSO's clustering of a population (its steps 2 and 3)."""
+
+    labels: np.ndarray
+    """Cluster of each member, shape (N,), int64 in 0..m-1."""
+    centre_index: np.ndarray
+    """Population index of each cluster's best member (its centre), -1 when it is empty, (m,)."""
+    sizes: np.ndarray
+    """Members of each cluster, (m,)."""
+
+
+# inline: a thin layer (see the note at move_ideas in bso_ops)
 @njit(cache=True, inline="always")
 def pick_index(u: float, n: int) -> int:
     """Index in 0..n-1 from a uniform; the min guards against rounding up to n."""
@@ -50,12 +63,12 @@ def cluster_centres(
     return centre, sizes
 
 
-# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+# inline: a thin layer (see the note at move_ideas in bso_ops)
 @njit(cache=True, inline="always")
 def cluster_population(
     population: np.ndarray, costs: np.ndarray, uniforms: np.ndarray, kmeans_max_iter: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """BSO's clustering step: ``(labels, centre_index, sizes)``.
+) -> Clusters:
+    """BSO's clustering step.
 
     k-means (Lloyd, at most ``kmeans_max_iter`` updates) from ``m = len(uniforms)``
     distinct members chosen by :func:`distinct_indices`, then
@@ -70,10 +83,28 @@ def cluster_population(
             initial[j, c] = population[idx[j], c]
     labels, _ = lloyd_kmeans_kernel(population, initial, kmeans_max_iter)
     centre, sizes = cluster_centres(labels, costs, uniforms.shape[0])
-    return labels, centre, sizes
+    return Clusters(labels, centre, sizes)
 
 
-# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+# inline: a thin layer (see the note at move_ideas in bso_ops)
+@njit(cache=True, inline="always")
+def clusters_of(
+    population: np.ndarray,
+    costs: np.ndarray,
+    given_labels: np.ndarray,
+    uniforms: np.ndarray,
+    kmeans_max_iter: int,
+) -> Clusters:
+    """The population's clusters: from ``given_labels`` when it holds one label per member
+    (a k-means computed outside compiled code, e.g. scikit-learn's), else by
+    :func:`cluster_population`."""
+    if given_labels.shape[0] == population.shape[0]:
+        centre, sizes = cluster_centres(given_labels, costs, uniforms.shape[0])
+        return Clusters(given_labels, centre, sizes)
+    return cluster_population(population, costs, uniforms, kmeans_max_iter=kmeans_max_iter)
+
+
+# inline: a thin layer (see the note at move_ideas in bso_ops)
 @njit(cache=True, inline="always")
 def nonempty(centre_index: np.ndarray) -> np.ndarray:
     """Indices of the non-empty clusters (those with ``centre_index >= 0``), ascending."""
@@ -92,7 +123,7 @@ def nonempty(centre_index: np.ndarray) -> np.ndarray:
     return used
 
 
-# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+# inline: a thin layer (see the note at move_ideas in bso_ops)
 @njit(cache=True, inline="always")
 def random_centre(centre_index: np.ndarray, u: float) -> int:
     """Population index of the centre of a non-empty cluster chosen uniformly by ``u``."""

@@ -5,12 +5,11 @@ with its :class:`numpy.random.Generator` and passes them in as arrays (always
 uniforms in [0, 1) or standard normals), so a test can drive each rule with
 hand-picked numbers. Inputs are never modified; new arrays are returned.
 
-The functions are numba kernels so that one BSO iteration costs a handful of
-Python-level calls: a population of 30 is evaluated in tens of microseconds,
-and a chain of small numpy operations per idea would cost more than that.
-:func:`generate_ideas` fuses the per-idea rules for that reason; the single
-rules stay public for tests and for other BSO variants (Shi's original BSO,
-chaotic local search) to compose differently.
+The functions are numba kernels, composed by the ask kernels of the BSO family (the modified
+BSO, Shi's original BSO and the chaotic-local-search BSO): a population of 30 is evaluated in
+tens of microseconds, and a chain of small numpy operations per idea would cost more than
+that. The iteration's random numbers have one layout for the whole family
+(:class:`BSODraws`).
 
 Shapes: ``N`` ideas/population members, ``D`` dimensions, ``m`` clusters,
 ``K`` non-empty clusters.
@@ -19,6 +18,7 @@ Shapes: ``N`` ideas/population members, ``D`` dimensions, ``m`` clusters,
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -33,8 +33,10 @@ from formation_bench.optimizers.bound_handling import (  # noqa: F401
 # The clustering-step operators live in their own module; bso_ops is the single
 # import point for every BSO operator.
 from formation_bench.optimizers.bso_clusters import (  # noqa: F401
+    Clusters,
     cluster_centres,
     cluster_population,
+    clusters_of,
     distinct_indices,
     nonempty,
     pick_index,
@@ -97,17 +99,18 @@ def weighted_centres(weights: np.ndarray, centres: np.ndarray) -> np.ndarray:
     return out
 
 
-# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+# inline: a thin layer (see the note at move_ideas)
 @njit(cache=True, inline="always")
 def all_centre_auxiliary(
     population: np.ndarray,
     centre_index: np.ndarray,
     seeds: np.ndarray,
-    map_id: int,
-    n_iterations: int,
-    normalise: bool,
+    weight_map: int,
+    n_weight_iterations: int,
+    normalise_weights: bool,
 ) -> np.ndarray:
-    """Eqs. (8)-(9) over the non-empty clusters.
+    """Eqs. (8)-(9) over the non-empty clusters, with the chaotic map ``weight_map`` iterated
+    ``n_weight_iterations`` times (:func:`chaotic_weights`).
 
     ``seeds`` is ``(N, m)``; the columns of empty clusters are ignored.
     """
@@ -121,11 +124,11 @@ def all_centre_auxiliary(
             picked[i, j] = seeds[i, used[j]]
         for c in range(d):
             centres[j, c] = population[centre_index[used[j]], c]
-    w = chaotic_weights(map_id, picked, n_iterations, normalise)
+    w = chaotic_weights(weight_map, picked, n_weight_iterations, normalise_weights)
     return weighted_centres(w, centres)
 
 
-# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+# inline: a thin layer (see the note at move_ideas)
 @njit(cache=True, inline="always")
 def _member(labels: np.ndarray, cluster: int, k: int) -> int:
     """Population index of the k-th member (in index order) of ``cluster``."""
@@ -141,9 +144,7 @@ def _member(labels: np.ndarray, cluster: int, k: int) -> int:
 @njit(cache=True)
 def shi_select(
     population: np.ndarray,
-    labels: np.ndarray,
-    centre_index: np.ndarray,
-    sizes: np.ndarray,
+    clusters: Clusters,
     uniforms: np.ndarray,
     p_one_cluster: float,
     p_one_centre: float,
@@ -159,6 +160,7 @@ def shi_select(
     one-cluster branch is always taken. Column meanings: see
     :data:`SHI_UNIFORMS_PER_IDEA`.
     """
+    labels, centre_index, sizes = clusters
     n_ideas = uniforms.shape[0]
     d = population.shape[1]
     used = nonempty(centre_index)
@@ -202,7 +204,7 @@ def shi_select(
     return out
 
 
-# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+# inline: a thin layer (see the note at move_ideas)
 @njit(cache=True, inline="always")
 def logsig_factor(t_now: float, t_max: float, slope: float) -> float:
     """Eq. (10) step-size factor ``logsig((0.5 T_max - T_now) / k)`` in (0, 1)."""
@@ -235,18 +237,18 @@ def _perturb_inplace(
 
 @njit(cache=True)
 def chaotic_candidates(
-    map_id: int, seed: np.ndarray, n_candidates: int, lower: np.ndarray, upper: np.ndarray
+    replacement_map: int, seed: np.ndarray, n_replace: int, lower: np.ndarray, upper: np.ndarray
 ) -> np.ndarray:
     """Eqs. (6)-(7): ``cx(i) = cr(i) (X_max - X_min) + X_min``, i = 1..n_r; shape (n_r, D).
 
-    ``cr(i)`` is the i-th iterate of the map from ``cr(0) = seed`` (D,).
+    ``cr(i)`` is the i-th iterate of the map ``replacement_map`` from ``cr(0) = seed`` (D,).
     """
     d = seed.shape[0]
-    out = np.empty((n_candidates, d))
+    out = np.empty((n_replace, d))
     cr = seed.copy()
     scratch = np.empty_like(cr)
-    for i in range(n_candidates):
-        step_inplace(map_id, cr, scratch)
+    for i in range(n_replace):
+        step_inplace(replacement_map, cr, scratch)
         for c in range(d):
             out[i, c] = min(lower[c] + cr[c] * (upper[c] - lower[c]), upper[c])
     return out
@@ -274,58 +276,68 @@ def install_best(
     return x_new, f_new
 
 
-# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
-@njit(cache=True, inline="always")
-def generate_ideas(
-    population: np.ndarray,
-    labels: np.ndarray,
-    centre_index: np.ndarray,
-    sizes: np.ndarray,
-    idea_uniforms: np.ndarray,
-    all_centre_weighting: bool,
-    weight_map: int,
-    n_weight_iterations: int,
-    normalise_weights: bool,
-    p_one_cluster: float,
-    p_one_centre: float,
-    p_two_centres: float,
-    factor: float,
-    rand: np.ndarray,
-    normals: np.ndarray,
-    scale: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    bound_handling: int,
-    resample_uniforms: np.ndarray,
-) -> np.ndarray:
-    """All N new ideas of one iteration: auxiliary solutions, eq. (10) step, bound handling.
+class BSODraws(NamedTuple):
+    """One BSO iteration's random numbers: its row of uniforms, laid out in this order, and its
+    standard normals. Every BSO of the family reads this layout (:func:`bso_draws`), which
+    does not depend on the branches taken, so that runs stay comparable."""
 
-    ``idea_uniforms`` is ``(N, m)`` chaotic seeds when ``all_centre_weighting``
-    (eqs. 8-9) and ``(N, 7)`` :func:`shi_select` uniforms otherwise (the three
-    probabilities are read only then). The settings parameters are named as the
-    config fields they come from, so the kernels pass them as ``name=s.name``.
-    """
-    if all_centre_weighting:
-        aux = all_centre_auxiliary(
-            population,
-            centre_index,
-            idea_uniforms,
-            weight_map,
-            n_weight_iterations,
-            normalise_weights,
-        )
+    kmeans: np.ndarray
+    """(m,): the k-means initial centres (:func:`distinct_indices`)."""
+    replace_draw: float
+    """Whether a centre is replaced this iteration (``< p_replace``)."""
+    centre_draw: float
+    """Which non-empty cluster's centre is replaced."""
+    point: np.ndarray
+    """(D,): the replacement's seed, the chaotic ``cr(0)`` or the uniform random point."""
+    sources: np.ndarray
+    """(N, width): the idea sources, chaotic weight seeds (width m) or :func:`shi_select`'s
+    uniforms (width :data:`SHI_UNIFORMS_PER_IDEA`)."""
+    rand: np.ndarray
+    """(N,): ``rand_i`` of the step of eq. (10)."""
+    normals: np.ndarray
+    """(N, D): the standard normals of the step."""
+    resample: np.ndarray
+    """(N, D): resample values of RESAMPLE bound handling (``normals``, unread, otherwise)."""
+
+
+def uniforms_per_iteration(n: int, d: int, n_clusters: int, width: int, resample: bool) -> int:
+    """Length of the row of uniforms of :class:`BSODraws` (with the resample values if
+    ``resample``)."""
+    return n_clusters + 2 + d + n * (width + 1) + (n * d if resample else 0)
+
+
+# inline: a thin layer (see the note at move_ideas)
+@njit(cache=True, inline="always")
+def bso_draws(uniforms: np.ndarray, normals: np.ndarray, n_clusters: int, width: int) -> BSODraws:
+    """The iteration's numbers as :class:`BSODraws`; ``uniforms`` may hold further values after
+    them (read by the caller)."""
+    n, d = normals.shape
+    m = n_clusters
+    sources_at = m + 2 + d
+    rand_at = sources_at + n * width
+    resample_at = rand_at + n
+    if uniforms.shape[0] > resample_at:
+        resample = uniforms[resample_at : resample_at + n * d].reshape(n, d)
     else:
-        aux = shi_select(
-            population,
-            labels,
-            centre_index,
-            sizes,
-            idea_uniforms,
-            p_one_cluster,
-            p_one_centre,
-            p_two_centres,
-        )
-    # aux is this kernel's own array: step and repair it in place (no extra allocations)
-    _perturb_inplace(aux, factor, rand, normals, scale)
-    apply_bounds_inplace(aux, lower, upper, bound_handling, resample_uniforms)
-    return aux
+        resample = normals
+    return BSODraws(
+        uniforms[:m], uniforms[m], uniforms[m + 1], uniforms[m + 2 : sources_at],
+        uniforms[sources_at:rand_at].reshape(n, width), uniforms[rand_at:resample_at], normals,
+        resample,
+    )  # fmt: skip
+
+
+# inline: a thin layer. Every compiled call boundary re-optimises the whole callee tree below
+# it when the caller is built, so thin layers cost cold-start seconds; see docs/design.md
+@njit(cache=True, inline="always")
+def move_ideas(auxiliary: np.ndarray, factor: float, draws: BSODraws, s: tuple) -> np.ndarray:
+    """The ideas: the ``auxiliary`` solutions (modified in place and returned) moved by the
+    step of eq. (10), ``factor rand_i N(0, 1) scale``, and brought back into the box.
+
+    ``s`` is the optimiser's settings (any namedtuple with ``scale``, ``lower``, ``upper``,
+    ``bound_handling``).
+    """
+    lower, upper, bound_handling = s.lower, s.upper, s.bound_handling
+    _perturb_inplace(auxiliary, factor, draws.rand, draws.normals, scale=s.scale)
+    apply_bounds_inplace(auxiliary, lower, upper, bound_handling, draws.resample)
+    return auxiliary

@@ -92,7 +92,7 @@ def tent_map(x: float) -> float:
     return TENT_SLOPE * (1.0 - x)
 
 
-# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+# inline: a thin layer (see the note at move_ideas in bso_ops)
 @njit(cache=True, inline="always")
 def reinject(x: float) -> float:
     """A value in [0.01, 0.99] derived from ``x``; replaces a degenerate iterate.
@@ -107,7 +107,7 @@ def reinject(x: float) -> float:
     return 0.01 + 0.98 * r
 
 
-# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+# inline: a thin layer (see the note at move_ideas in bso_ops)
 @njit(cache=True, inline="always")
 def guard(x: float, y: float) -> float:
     """``y`` (the iterate after ``x``) unless it is degenerate, else :func:`reinject` (x)."""
@@ -216,7 +216,7 @@ def _raw_pass_by_id(map_id: int, x: np.ndarray, scratch: np.ndarray) -> bool:
     return degenerate
 
 
-# inline: a thin layer (see the note at ideas_from_clusters in modified_bso_kernels)
+# inline: a thin layer (see the note at move_ideas in bso_ops)
 @njit(cache=True, inline="always")
 def step_inplace(map_id: int, x: np.ndarray, scratch: np.ndarray) -> None:
     """One guarded iteration of every entry of the 1-D array ``x``, in place.

@@ -30,7 +30,10 @@ factor per iteration, here the schedule is tied to the planned iterations so
 that it spans the short budgets of an MPC solve.
 
 The default population is 25 with 5 local points per iteration: 30 evaluations
-per iteration, the same budget as the other population optimisers.
+per iteration, the same budget as the other population optimisers. The iteration is written
+once, as the ask/tell kernels :func:`cls_ask` and :func:`cls_tell`, which both solve loops of
+:mod:`~formation_bench.optimizers.ask_tell` drive; with RESAMPLE bound handling the local
+points' resample values follow Shi's numbers in the iteration's row of uniforms.
 """
 
 from __future__ import annotations
@@ -42,34 +45,23 @@ import numpy as np
 from numba import njit
 
 from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
-from formation_bench.optimizers.base import (
-    Bounds,
-    Budget,
-    EvaluationCounter,
-    OptimizeResult,
-    PopulationOptimizer,
+from formation_bench.optimizers.ask_tell import (
+    AskTellOptimizer,
+    DrawPlan,
+    Kernels,
+    iterate,
+    register_kernels,
 )
-from formation_bench.optimizers.bso_ops import BoundHandling, apply_bounds_inplace
+from formation_bench.optimizers.base import Bounds, Budget
+from formation_bench.optimizers.bso_ops import (
+    SHI_UNIFORMS_PER_IDEA,
+    BoundHandling,
+    apply_bounds_inplace,
+    bso_draws,
+)
 from formation_bench.optimizers.chaos import ChaoticMap, step_inplace
-from formation_bench.optimizers.compiled import (
-    NFEV,
-    CompiledObjective,
-    evaluate_leading,
-    remaining,
-)
 from formation_bench.optimizers.original_bso_kernels import ShiConfig, ShiSettings, shi_step
-from formation_bench.optimizers.population import (
-    RandomAhead,
-    WarmStartInit,
-    compiled_initial_population,
-    evaluate_prefix,
-    greedy_select,
-    initial_population,
-    iteration_randoms,
-    no_randoms,
-    progress,
-    run_compiled_blocks,
-)
+from formation_bench.optimizers.population import WarmStartInit, greedy_select, progress
 from formation_bench.optimizers.registry import register
 
 
@@ -78,8 +70,8 @@ class LocalSearchConfig(Validated):
     """The chaotic local search's settings, declared once (composed with Shi's in the optimiser).
 
     Declared next to the kernels that read them: the fields marked
-    ``kernel=True`` make :class:`LocalSettings`, which :func:`cls_iteration`
-    rebuilds and reads by name.
+    ``kernel=True`` make :class:`LocalSettings`, which :func:`cls_ask` rebuilds and reads by
+    name.
     """
 
     n_local: int = setting(5, low=1, kernel=True, doc="Chaotic local search points per iteration")
@@ -101,46 +93,24 @@ LocalSettings = kernel_settings_class(
     __name__,
     LocalSearchConfig,
     (),
-    """What :func:`cls_iteration` reads of the local search: the kernel fields of
+    """What :func:`cls_ask` reads of the local search: the kernel fields of
     :class:`LocalSearchConfig` (the map as an integer).""",
 )
 
 
 class LocalSearchState(NamedTuple):
-    """The BSO population, the last candidates and bookkeeping (arrays never modified in place).
-
-    As in :class:`~formation_bench.optimizers.original_bso.BSOState`, an iteration's candidates
-    (N new ideas, then the local points) are selected at the start of the next
-    iteration, by :func:`select_with_local` in the same kernel call;
-    :meth:`population` applies the pending selection.
-    """
+    """The BSO population between iterations (kernels return a new state, never modify one)."""
 
     x: np.ndarray
-    """Ideas before the selection of ``candidates``, shape (N, D)."""
+    """Ideas, shape (N, D)."""
     f: np.ndarray
     """Their costs (+inf for ideas not evaluated for lack of budget)."""
-    candidates: np.ndarray
-    """The last N new ideas, the n_local local points and, as the last row, the current
-    value of the chaotic sequence of every coordinate (only that row at first)."""
-    costs: np.ndarray
-    """Costs of the ideas and local points (+inf if not evaluated); empty at first."""
-    settings: tuple
-    """The packed :class:`~formation_bench.optimizers.original_bso_kernels.ShiSettings`."""
-    local: tuple
-    """The packed :class:`LocalSettings`."""
-    t_max: int
-    """Planned iterations (also in ``settings``; read here by the Python side)."""
-    randoms: RandomAhead
-    """Random numbers drawn ahead for the next iterations."""
-    replacements: int = 0
+    z: np.ndarray
+    """Current value of the chaotic sequence of every coordinate, (D,)."""
+    replacements: int
     """Random-point centre replacements so far."""
-    improvements: int = 0
+    improvements: int
     """Local searches whose point was selected into the best idea's slot so far."""
-
-    def population(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(x, f)`` after the pending selection of the candidates."""
-        x, f, _ = select_with_local(self.x, self.f, self.candidates, self.costs, self.x.shape[0])
-        return x, f
 
 
 @njit(cache=True)
@@ -156,39 +126,34 @@ def local_radius(
 @njit(cache=True)
 def local_candidates(
     ideas: np.ndarray,
-    x: np.ndarray,
-    f: np.ndarray,
-    local_map: int,
+    best: np.ndarray,
     z: np.ndarray,
-    n_local: int,
     radius: float,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    bound_handling: int,
     resample_uniforms: np.ndarray,
-) -> np.ndarray:
-    """The ideas, the local search points and the sequence's next state, stacked.
+    local: LocalSettings,
+    s: ShiSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(candidates, next z)``: the ideas, then the local search points.
 
-    Rows ``0..N-1`` are ``ideas``; row ``N + k`` (k < n_local) is
-    ``x_best + radius (upper - lower) (2 z_{k+1} - 1)`` brought into the box by
-    ``bound_mode``, with ``x_best`` the lowest-cost row of ``x`` and ``z_{k+1}``
-    the (k+1)-th iterate of ``z`` under the map ``local_map``; the last row is the
-    last iterate (the next ``z``). ``resample_uniforms`` (n_local x D) is read
-    only by RESAMPLE.
+    Rows ``0..N-1`` of the candidates are ``ideas``; row ``N + k`` (k < n_local) is
+    ``best + radius (upper - lower) (2 z_{k+1} - 1)`` brought into the box by the BSO's
+    bound handling, with ``z_{k+1}`` the (k+1)-th iterate of ``z`` under ``local_map``; the
+    next ``z`` is the last iterate. ``resample_uniforms`` (n_local x D) is read only by
+    RESAMPLE.
     """
     n, d = ideas.shape
-    out = np.empty((n + n_local + 1, d))
+    n_local, local_map = local.n_local, local.local_map
+    lower, upper, bound_handling = s.lower, s.upper, s.bound_handling
+    out = np.empty((n + n_local, d))
     out[:n] = ideas
-    best = x[np.argmin(f)]
     sequence = z.copy()
     scratch = np.empty(d)
     for k in range(n_local):
         step_inplace(local_map, sequence, scratch)
         for c in range(d):
             out[n + k, c] = best[c] + radius * (upper[c] - lower[c]) * (2.0 * sequence[c] - 1.0)
-    out[n + n_local] = sequence
-    apply_bounds_inplace(out[n : n + n_local], lower, upper, bound_handling, resample_uniforms)
-    return out
+    apply_bounds_inplace(out[n:], lower, upper, bound_handling, resample_uniforms)
+    return out, sequence
 
 
 @njit(cache=True)
@@ -197,19 +162,17 @@ def select_with_local(
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Slot-wise greedy selection of the ideas, then the best local point into the best's slot.
 
-    ``candidates`` holds ``n_ideas`` ideas and then the local points (further
-    rows are ignored), ``costs`` one cost for each of these (none: nothing to
-    select). The best local point replaces the member in the slot that held
-    the best idea before this selection only if it is strictly better than
-    that slot's member after the greedy selection. Returns ``(x, f, 1 if it
+    ``candidates`` holds ``n_ideas`` ideas and then the local points, ``costs`` the costs of
+    the leading candidates evaluated (the ideas first). The best local point replaces the
+    member in the slot that held the best idea before this selection only if it is strictly
+    better than that slot's member after the greedy selection. Returns ``(x, f, 1 if it
     did)``, new arrays.
     """
     n_costs = costs.shape[0]
-    if n_costs == 0:
-        return x.copy(), f.copy(), 0
     slot = np.argmin(f)
-    new_x, new_f, _ = greedy_select(x, f, candidates[:n_ideas], costs[:n_ideas])
-    if n_costs == n_ideas:
+    told = min(n_costs, n_ideas)
+    new_x, new_f, _ = greedy_select(x, f, candidates[:told], costs[:told])
+    if n_costs <= n_ideas:
         return new_x, new_f, 0
     k = n_ideas + np.argmin(costs[n_ideas:])
     if costs[k] < new_f[slot]:
@@ -219,106 +182,52 @@ def select_with_local(
     return new_x, new_f, 0
 
 
-@njit(cache=True)
-def cls_iteration(
-    x: np.ndarray,
-    f: np.ndarray,
-    candidates: np.ndarray,
-    costs: np.ndarray,
-    u: np.ndarray,
-    normals: np.ndarray,
-    resample_local: np.ndarray,
-    iteration: int,
-    shi_packed: tuple,
-    local_packed: tuple,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """One iteration besides the evaluations: ``(x, f, candidates, 1 if the local point won)``.
-
-    :func:`select_with_local` of the last ``candidates``, then
-    :func:`~formation_bench.optimizers.original_bso_kernels.shi_step` and :func:`local_candidates`
-    around the selected population's best, from the sequence value in the
-    last row of ``candidates``. ``shi_packed`` and ``local_packed`` are the
-    packed :class:`~formation_bench.optimizers.original_bso_kernels.ShiSettings` and
-    :class:`LocalSettings`.
-    """
-    s = ShiSettings(*shi_packed)
-    local = LocalSettings(*local_packed)
-    n = x.shape[0]
-    x, f, improved = select_with_local(x, f, candidates, costs, n)
-    z = candidates[candidates.shape[0] - 1]
-    ideas = shi_step(x, f, u, normals, iteration, s)
+@njit(cache=True, inline="always")
+def cls_ask(state, params, uniforms, normals, iteration, remaining):  # type: ignore[no-untyped-def]
+    """Shi's N new ideas (:func:`~formation_bench.optimizers.original_bso_kernels.shi_step`),
+    then the local points around the best idea (:func:`local_candidates`); ``params`` is
+    ``(ShiSettings, LocalSettings)`` packed."""
+    s = ShiSettings(*params[0])
+    local = LocalSettings(*params[1])
+    d = state.x.shape[1]
+    draws = bso_draws(uniforms, normals, n_clusters=s.n_clusters, width=SHI_UNIFORMS_PER_IDEA)
+    ideas = shi_step(state.x, state.f, draws, iteration, s)
     radius = local_radius(
-        local_radius_start=local.local_radius_start,
-        local_radius_end=local.local_radius_end,
-        iteration=iteration,
-        t_max=s.t_max,
-    )
-    out = local_candidates(
-        ideas, x, f, local_map=local.local_map, z=z, n_local=local.n_local, radius=radius,
-        lower=s.lower, upper=s.upper, bound_handling=s.bound_handling,
-        resample_uniforms=resample_local,
+        local_radius_start=local.local_radius_start, local_radius_end=local.local_radius_end,
+        iteration=iteration, t_max=s.t_max,
     )  # fmt: skip
-    return x, f, out, improved
+    if s.bound_handling == BoundHandling.RESAMPLE:  # the last n_local x D uniforms
+        n_local = local.n_local
+        resample = uniforms[uniforms.shape[0] - n_local * d :].reshape(n_local, d)
+    else:
+        resample = normals
+    best = state.x[np.argmin(state.f)]
+    candidates, z = local_candidates(ideas, best, state.z, radius, resample, local, s)
+    replaced = state.replacements + (draws.replace_draw < s.p_replace)
+    asked = LocalSearchState(state.x, state.f, z, replaced, state.improvements)
+    return asked, candidates, True
+
+
+@njit(cache=True, inline="always")
+def cls_tell(state, params, candidates, costs, iteration):  # type: ignore[no-untyped-def]
+    """The ideas' slot-wise selection and the local point's (:func:`select_with_local`)."""
+    x, f, improved = select_with_local(state.x, state.f, candidates, costs, state.x.shape[0])
+    return LocalSearchState(x, f, state.z, state.replacements, state.improvements + improved)
+
+
+register_kernels(LocalSearchState, cls_ask, cls_tell)
 
 
 @njit(cache=True)
-def cls_block(
-    address: int,
-    data: np.ndarray,
-    counts: np.ndarray,
-    best: np.ndarray,
-    x: np.ndarray,
-    f: np.ndarray,
-    candidates: np.ndarray,
-    costs: np.ndarray,
-    uniforms: np.ndarray,
-    normals: np.ndarray,
-    nit: int,
-    first_iteration: int,
-    iteration_limit: int,
-    shi_packed: tuple,
-    local_packed: tuple,
-    history_nfev: np.ndarray,
-    history_fun: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int, int]:
-    """Iterations ``nit + 1``, ... of a compiled solve, one per row of the random block.
-
-    Each is :meth:`ChaoticLocalSearchBSO.step` (bound handling other than RESAMPLE, which draws
-    per iteration) with the objective called through ``address``/``data``; the block stops
-    early at the iteration limit or when no evaluation is left. Returns ``(x, f, candidates,
-    costs, iterations done, random replacements, local improvements)``; the history arrays get
-    one entry per iteration done.
-    """
-    s = ShiSettings(*shi_packed)
-    done = 0
-    replacements = 0
-    improvements = 0
-    row = nit + 1 - first_iteration
-    while nit < iteration_limit and row < uniforms.shape[0] and remaining(counts) > 0:
-        nit += 1
-        u = uniforms[row]
-        # the local points' resample uniforms are not read without RESAMPLE
-        x, f, candidates, improved = cls_iteration(
-            x, f, candidates, costs, u, normals[row], x, nit, shi_packed, local_packed
-        )
-        # one objective call for the ideas and the local points (ideas first under a short budget)
-        costs = evaluate_leading(address, data, candidates, candidates.shape[0] - 1, counts, best)
-        if u[s.n_clusters] < s.p_replace:
-            replacements += 1
-        improvements += improved
-        history_nfev[done] = counts[NFEV]
-        history_fun[done] = best[0]
-        done += 1
-        row += 1
-    return x, f, candidates, costs, done, replacements, improvements
+def cls_iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def]
+    """:func:`~formation_bench.optimizers.ask_tell.iterate` with the CLS BSO's kernels."""
+    return iterate(state, params, block, nit, rows)
 
 
 # WarmStartInit leads the bases because dataclass fields follow the reversed MRO: its settings
 # then come after the method's own, whose positions and listing order stay as they were
 @dataclass(frozen=True)
-class ChaoticLocalSearchBSO(
-    WarmStartInit, LocalSearchConfig, ShiConfig, PopulationOptimizer[LocalSearchState]
-):
+class ChaoticLocalSearchBSO(WarmStartInit, LocalSearchConfig, ShiConfig, AskTellOptimizer):
     """Shi's BSO step plus a chaotic local search around the best idea each iteration.
 
     Composed of Shi's settings and step
@@ -333,6 +242,8 @@ class ChaoticLocalSearchBSO(
         25, low=2, doc="N, ideas per iteration; 25 + n_local = 30 evaluations per iteration"
     )
 
+    kernels = Kernels(cls_ask, cls_tell, cls_iterate)
+
     @property
     def default_budget(self) -> Budget:
         return Budget(max_iterations=self.max_iterations)
@@ -343,99 +254,25 @@ class ChaoticLocalSearchBSO(
     def initial_evaluations(self) -> int:
         return self.population_size
 
+    def params(self, bounds: Bounds, t_max: int) -> tuple:
+        return self.shi_settings(bounds, t_max), pack_settings(LocalSettings, self)
+
+    def start(
+        self, points: np.ndarray, costs: np.ndarray, rng: np.random.Generator, params: tuple
+    ) -> LocalSearchState:
+        """The ideas, and the chaotic sequence's seed drawn after them."""
+        return LocalSearchState(points, costs, rng.random(points.shape[1]), 0, 0)
+
+    def draw_plan(self, n: int, d: int) -> DrawPlan:
+        resample = self.bound_handling is BoundHandling.RESAMPLE
+        return DrawPlan(self.uniforms_per_step(n, d) + (self.n_local * d if resample else 0),
+                        (n, d))  # fmt: skip
+
     def result_info(self, state: LocalSearchState) -> dict[str, Any]:
         return {
             "random_replacements": state.replacements,
             "local_search_improvements": state.improvements,
         }
-
-    def init(
-        self,
-        counter: EvaluationCounter,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        x0: np.ndarray | None,
-        max_iterations: int,
-    ) -> LocalSearchState:
-        x, f = initial_population(counter, bounds, rng, self.population_size, x0, self)
-        n, d = x.shape
-        return LocalSearchState(
-            x=x,
-            f=f,
-            candidates=rng.random((1, d)),
-            costs=np.empty(0),
-            settings=self.shi_settings(bounds, max_iterations),
-            local=pack_settings(LocalSettings, self),
-            t_max=int(max_iterations),
-            randoms=no_randoms(self.uniforms_per_step(n, d), (n, d)),
-        )
-
-    def step(
-        self,
-        state: LocalSearchState,
-        counter: EvaluationCounter,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        iteration: int,
-    ) -> LocalSearchState:
-        randoms, u, normals = iteration_randoms(state.randoms, rng, iteration, state.t_max)
-        resample_local = (
-            rng.random((self.n_local, bounds.dim))
-            if self.bound_handling is BoundHandling.RESAMPLE
-            else state.x  # not read
-        )
-        x, f, candidates, improved = cls_iteration(
-            state.x, state.f, state.candidates, state.costs, u, normals, resample_local,
-            iteration, state.settings, state.local,
-        )  # fmt: skip
-        # one objective call for the ideas and the local points (ideas first under a short budget)
-        costs = evaluate_prefix(counter, candidates[:-1])
-        replaced = bool(u[self.n_clusters] < self.p_replace)
-        return LocalSearchState(
-            x, f, candidates, costs, state.settings, state.local, state.t_max, randoms,
-            state.replacements + replaced, state.improvements + improved,
-        )  # fmt: skip
-
-    def has_compiled_loop(self) -> bool:
-        # RESAMPLE draws the local points' uniforms at every iteration, between the blocks
-        return self.bound_handling is not BoundHandling.RESAMPLE
-
-    def minimize_compiled(
-        self,
-        objective: CompiledObjective,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        budget: Budget,
-        x0: np.ndarray | None,
-    ) -> OptimizeResult:
-        t_max = self.planned_iterations(budget)
-        x, f, start = compiled_initial_population(
-            objective, bounds, rng, self.population_size, x0, budget.max_evaluations, self
-        )
-        n, d = x.shape
-        shi_packed = self.shi_settings(bounds, t_max)
-        local_packed = pack_settings(LocalSettings, self)
-        carry = [x, f, rng.random((1, d)), np.empty(0), 0, 0]
-
-        def run_block(
-            nit: int, limit: int, randoms: RandomAhead, history_nfev: np.ndarray,
-            history_fun: np.ndarray,
-        ) -> int:  # fmt: skip
-            x, f, candidates, costs, replacements, improvements = carry
-            x, f, candidates, costs, done, replaced, improved = cls_block(
-                objective.address, objective.data, start.counts, start.best, x, f, candidates,
-                costs, randoms.uniforms, randoms.normals, nit, randoms.first_iteration,
-                limit, shi_packed, local_packed, history_nfev, history_fun,
-            )  # fmt: skip
-            carry[:] = [
-                x, f, candidates, costs, replacements + replaced, improvements + improved
-            ]  # fmt: skip
-            return done
-
-        return run_compiled_blocks(
-            run_block, start, rng, budget, t_max, self.uniforms_per_step(n, d), (n, d),
-            lambda: {"random_replacements": carry[4], "local_search_improvements": carry[5]},
-        )  # fmt: skip
 
 
 register(

@@ -8,13 +8,9 @@ step-size adaptation, and the covariance matrix by the rank-one and rank-mu
 updates (active: the worst steps get negative weights, as in the tutorial's
 defaults). The eigendecomposition of C is refreshed lazily, after
 ``0.5 lambda / (n (c_1 + c_mu))`` evaluations, as in Hansen's pure-Python
-reference implementation. The update rules are in :mod:`.cma_ops`; one
-compiled call per generation does all of a generation's own work. With an
-objective that offers a compiled handle (see
-:mod:`~formation_bench.optimizers.compiled`), whole blocks of
-generations run in one compiled call (:func:`.cma_block`); Python draws the
-random numbers and restarts the runs, at the moments the Python loop does, so
-both give the same solve to the bit.
+reference implementation. The update rules are in :mod:`.cma_ops`, written once as the
+ask/tell kernels :func:`cma_ask` and :func:`cma_tell`, which both solve loops drive; the
+runs and restarts are in :mod:`.cma_restarts`.
 
 **Coordinates.** The search runs in the box normalised to [0, 1]^n, so the
 initial covariance is the identity there and ``sigma0`` is a fraction of
@@ -25,46 +21,11 @@ experiments).
 (it is evaluated first, so the result is never worse), else a uniform point
 of the box (also evaluated).
 
-**Bounds.** ``bound_handling`` brings the samples into the box, in one of
-two ways; no penalty is added, so the reported cost is always the objective
-at the reported point, which is always inside.
-
-* A repair (``clip``, ``reflect``, ``resample``): a
-  sample outside the box is brought in by the project's repair and that point
-  is evaluated. The update learns from the *sampled* step, so CMA-ES minimises
-  ``f(repair(x))`` over the whole space: with reflect a periodic fold,
-  continuous across the faces. With ``lamarckian=True`` the update learns from
-  the repaired points instead, their steps ``(x_repaired - m) / sigma``
-  shortened to the Mahalanobis length ``sqrt(n) + 2n / (n + 2)`` as Hansen
-  (arXiv:1110.4181) does for solutions not sampled from the distribution.
-  Measured (median of 7 seeds, d = 10): with an optimum in the corner of
-  [-1, 1]^10 (cost 40 there) the Lamarckian repair loses its step size at the
-  faces and ends at 43.5 after 1230 evaluations, the default at 40.006; with
-  clip the cost beyond a face is flat, so an optimum just inside a face (4.9
-  in [-5, 5]) ends at 0.08 after 3000 evaluations, against 2e-15 with
-  reflect. Resample makes the cost beyond a face random; it suits only the
-  Lamarckian mode.
-* ``transform`` (the default): pycma's BoundTransform (the default bound
-  handling of pycma, and so of the ``pycma`` adapter), reimplemented in
-  :func:`~.cma_ops.linquad_value`. Every sample, inside or not, is mapped
-  into the box by a periodic, continuously differentiable map that is the
-  identity but for a margin of 5 % of the range along each face (pycma's
-  default margins in the normalised box, as the adapter uses it), where it
-  bends quadratically onto the face; the mapped point is evaluated and the
-  update learns from the sample. Unlike the repairs it has a smooth minimum
-  *at* a face: an optimum on a face is the bottom of a parabola in the sample
-  space, not the edge of a fold, so the search can converge onto it. The
-  first mean is the inverse image of the start (as pycma's ``x0``), so the
-  start is also the distribution's mapped centre. Measured on the instance
-  library (v1, 504 problems from their warm starts, default budget): on the
-  121 whose best-known point touches a bound the transform beat reflect on
-  112 and lost on 9 (median relative gap 4.5e-5 against 2.2e-3) and was level
-  with pycma (56 better, 65 worse, Wilcoxon p = 0.49); on the 383 others the
-  two bound handlings were level (p = 0.31). On the validation split of
-  library v2 (293 problems, one seed) it lowered the median normalised gap
-  from 0.032 (``reflect``) to 0.019 (Wilcoxon p = 2.5e-4), so it is the
-  default. With ``lamarckian=True`` the update learns from the mapped points
-  instead (capped as above).
+**Bounds.** ``bound_handling`` brings the samples into the box: a repair (``clip``,
+``reflect``, ``resample``; optionally ``lamarckian``) or pycma's BoundTransform
+(``transform``, the default). No penalty is added, so the reported cost is always the
+objective at the reported point, which is always inside. The choices and their measured
+effect are described in :mod:`.cma_transform`.
 
 ``constants`` picks the strategy constants: ``tutorial`` (Table 1 of the
 tutorial) or ``pycma`` (the default; those of pycma 4: ``c_sigma = (mueff + 2)
@@ -81,28 +42,9 @@ start that is nearly right (the closed loop's shifted plan): chosen on the
 validation split from 0.005, 0.01, 0.02, 0.05 and 0.1 (median normalised gaps
 0.0019, 0.0018, 0.0016, 0.0023, 0.0046).
 
-**Stopping and restarts.** A solve always spends its budget. When a run
-meets one of the tutorial's stop criteria (TolFun, TolX, NoEffectAxis,
-NoEffectCoord, ConditionCov, TolUpSigma; not Stagnation) before the budget
-is spent, a new run starts from a uniform point of the box with the
-initial step size:
-
-* ``restarts=same`` (``cma-es``): with the same population size;
-* ``restarts=ipop`` (``cma-es-ipop``): each restart doubles lambda
-  (Auger & Hansen, *A restart CMA evolution strategy with increasing
-  population size*, CEC 2005);
-* ``restarts=bipop`` (``cma-es-bipop``): Hansen, *Benchmarking a
-  BI-population CMA-ES on the BBOB-2009 function testbed*, GECCO 2009, with
-  the budget accounting of pycma's ``fmin(bipop=True)``: the first run counts
-  as small; a small run follows while the small runs have used fewer
-  evaluations than the large ones, with ``lambda_s = floor(lambda_def
-  (lambda_l / lambda_def)^(U^2))`` (lambda_l: the latest large run's),
-  ``sigma0 10^(-2 U')`` and at most half the large runs' evaluations;
-  otherwise a large run doubles lambda.
-
-Doubling stops at 2^9 times the default lambda. On the paper problem at the
-default budget (1230 evaluations, lambda = 10) a run rarely stops, so the
-three variants usually give identical solves there.
+**Restarts** (:mod:`.cma_restarts`): same lambda, IPOP or BIPOP. On the paper problem at the
+default budget (1230 evaluations, lambda = 10) a run rarely stops, so the three variants
+usually give identical solves there.
 
 **Budget.** A generation the evaluation budget cuts short evaluates its
 first samples only and is not learned from; the solve ends with it.
@@ -110,123 +52,57 @@ first samples only and is not learned from; the solve ends with it.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from enum import IntEnum
 from time import perf_counter
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
+from numba import njit
 
-from formation_bench.fields import setting, validate_fields
+from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.optimizers.ask_tell import (
+    AskTellOptimizer,
+    DrawPlan,
+    Kernels,
+    iterate,
+    register_kernels,
+)
 from formation_bench.optimizers.base import (
     Bounds,
     Budget,
-    EvaluationCounter,
     OptimizeResult,
-    PopulationOptimizer,
+    check_rng,
+    check_x0,
 )
 from formation_bench.optimizers.cma_ops import (
-    RUN_EVALUATIONS,
     RUNNING,
-    SIGMA,
-    STOP,
-    STOP_NAMES,
     CMABoundHandling,
     CMAConstants,
-    cma_block,
-    cma_generation,
+    CMARun,
+    Samples,
     default_population_size,
-    linquad_inverse,
-    new_run,
-    run_template,
+    injection_cap,
+    learn,
+    sample,
 )
-from formation_bench.optimizers.compiled import (
-    NFEV,
-    CompiledObjective,
-    new_tally,
-    remaining,
-)
-from formation_bench.optimizers.compiled import evaluate_prefix as compiled_evaluate_prefix
-from formation_bench.optimizers.population import (
-    ROWS_AHEAD,
-    CompiledStart,
-    compiled_iteration_limit,
-    compiled_result,
-    evaluate_prefix,
+from formation_bench.optimizers.cma_restarts import (
+    CMAState,
+    Restarts,
+    campaign_info,
+    first_run,
+    run_campaign,
 )
 from formation_bench.optimizers.registry import register
+from formation_bench.optimizers.tallies import open_tally
 
-MAX_DOUBLINGS = 9
-"""Most doublings of the default population size by IPOP and BIPOP restarts."""
-
-
-class Restarts(IntEnum):
-    """What follows a run that met a stop criterion, while budget is left."""
-
-    SAME = 0
-    """A new run with the same population size."""
-    IPOP = 1
-    """A new run with twice the previous population size (Auger & Hansen 2005)."""
-    BIPOP = 2
-    """Large (doubling) and small (random, local) runs interleaved (Hansen 2009)."""
-
-
-class RunPlan(NamedTuple):
-    """The population and step size of one run, and its evaluation allowance."""
-
-    population_size: int
-    sigma0: float
-    """Initial step size in the normalised box."""
-    large: bool
-    """Counts in BIPOP's large-population budget (the first run counts as small)."""
-    limit: float
-    """Evaluations the run may learn from before it is stopped (small BIPOP runs), else inf."""
-
-
-class Campaign(NamedTuple):
-    """What a solve keeps across its runs."""
-
-    t_max: int
-    """Planned iterations of the solve (the iteration budget, or a large number)."""
-    default_lambda: int
-    """lambda of the first run."""
-    large_evaluations: int = 0
-    """Evaluations of the finished runs counted as large (BIPOP)."""
-    small_evaluations: int = 0
-    """Evaluations of the finished runs counted as small (BIPOP)."""
-    doublings: int = 0
-    """Population doublings so far (IPOP and BIPOP's large runs)."""
-    finished: tuple[tuple[int, int, str], ...] = ()
-    """``(lambda, evaluations learned from, why it stopped)`` of each finished run."""
-
-
-class CMAState(NamedTuple):
-    """The current run between generations (arrays are never modified in place).
-
-    The last generation's costs are learned from at the start of the next
-    step, in the same compiled call that samples the next generation.
-    """
-
-    run: np.ndarray
-    """The last generation's result: its lambda points, then the run's core
-    (:mod:`~formation_bench.optimizers.cma_ops`)."""
-    costs: np.ndarray
-    """The points' costs (+inf where the budget left one unevaluated); empty before the
-    run's first generation."""
-    normals: np.ndarray
-    """Standard normals drawn ahead, one (lambda, n) block per generation."""
-    uniforms: np.ndarray
-    """Uniforms of the RESAMPLE bound handling, laid out as ``normals`` (else ``normals``)."""
-    first_iteration: int
-    """Iteration whose random numbers are block 0."""
-    plan: RunPlan
-    campaign: Campaign
+PER_SOLVE = ("cap", "lower", "width", "upper", "unit_lower", "unit_upper")
+"""The kernel settings fixed per solve rather than per configuration, after the declared ones."""
 
 
 @dataclass(frozen=True)
-class CMAES(PopulationOptimizer[CMAState]):
-    """CMA-ES with restarts; see the module docstring for the algorithm and its sources."""
+class CMAConfig(Validated):
+    """The settings of :class:`CMAES`, declared once: the fields marked ``kernel=True`` make
+    :class:`CMASettings`, which the kernels rebuild and read by name."""
 
     population_size: int | None = setting(
         None, kind=int, optional=True, low=2,
@@ -247,30 +123,94 @@ class CMAES(PopulationOptimizer[CMAState]):
         doc="After a stop criterion: same (same lambda), ipop (double lambda) or bipop",
     )
     bound_handling: CMABoundHandling = setting(
-        CMABoundHandling.TRANSFORM,
+        CMABoundHandling.TRANSFORM, kernel=True,
         doc="How samples are brought into the box: clip, reflect, resample, or transform (pycma's)",
-    )
+    )  # fmt: skip
     constants: CMAConstants = setting(
-        CMAConstants.PYCMA,
+        CMAConstants.PYCMA, kernel=True,
         doc="Strategy constants and h_sigma test: tutorial (Hansen's Table 1) or pycma (pycma 4's)",
-    )
+    )  # fmt: skip
     lamarckian: bool = setting(
-        False,
+        False, kernel=True,
         doc="Learn from the repaired points (steps capped, Hansen 2011), not the sampled steps",
-    )
+    )  # fmt: skip
     tol_fun: float = setting(
-        1e-12, low=0.0,
+        1e-12, low=0.0, kernel=True,
         doc="TolFun: stop a run when recent best costs and the last generation span less",
     )  # fmt: skip
     tol_x: float = setting(
-        1e-12, low=0.0,
+        1e-12, low=0.0, kernel=True,
         doc="TolX: stop a run when all standard deviations fall below tol_x times sigma0",
     )  # fmt: skip
 
-    def __post_init__(self) -> None:
-        validate_fields(self)
 
-    # --- interface -------------------------------------------------------------------------------
+CMASettings = kernel_settings_class(
+    "CMASettings",
+    __name__,
+    CMAConfig,
+    PER_SOLVE,
+    """What the kernels read, fixed during a solve: the kernel fields of :class:`CMAConfig`
+    (enums as integers), then the Mahalanobis cap of a Lamarckian step, the box (lower,
+    width, upper) and the normalised box's bounds (zeros and ones).""",
+)
+
+
+@njit(cache=True, inline="always")
+def cma_ask(state, params, uniforms, normals, iteration, remaining):  # type: ignore[no-untyped-def]
+    """Learn from the told generation (if any), then sample the next from ``normals`` (and,
+    with RESAMPLE, ``uniforms``), both ``(lambda, n)``.
+
+    The update waits for the next generation so that a solve's last generation, which no
+    generation follows, is not learned from, and a run is checked for a stop only when
+    budget is left to restart it. A run that stops samples nothing (0 candidates) and keeps
+    doing so: the solve loop restarts it (:func:`~.cma_restarts.run_campaign`).
+    """
+    run = state.run
+    if run.progress.stop != RUNNING:
+        return state, np.empty((0, run.distribution.mean.shape[0])), True
+    s = CMASettings(*params)
+    if run.samples.costs.shape[0] > 0:
+        run = learn(run, s, state.plan, iteration)
+        if run.progress.stop != RUNNING:
+            nothing = np.empty((0, run.distribution.mean.shape[0]))
+            return CMAState(run, state.plan, state.campaign), nothing, True
+    samples = sample(run.distribution, normals, uniforms, s)
+    run = CMARun(run.distribution, samples, run.progress, run.strategy)
+    return CMAState(run, state.plan, state.campaign), samples.points, True
+
+
+@njit(cache=True, inline="always")
+def cma_tell(state, params, candidates, costs, iteration):  # type: ignore[no-untyped-def]
+    """Keep the candidates' costs for the next :func:`cma_ask` (+inf for rows the budget left
+    unevaluated)."""
+    lam = candidates.shape[0]
+    if lam == 0:
+        return state
+    told = costs  # a new array every round: kept, not copied
+    if costs.shape[0] < lam:
+        told = np.full(lam, np.inf)
+        told[: costs.shape[0]] = costs
+    run = state.run
+    s = run.samples
+    run = CMARun(run.distribution, Samples(s.points, s.steps, s.lengths, told), run.progress,
+                 run.strategy)  # fmt: skip
+    return CMAState(run, state.plan, state.campaign)
+
+
+register_kernels(CMAState, cma_ask, cma_tell)
+
+
+@njit(cache=True)
+def cma_iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def]
+    """:func:`~formation_bench.optimizers.ask_tell.iterate` with the CMA-ES kernels."""
+    return iterate(state, params, block, nit, rows)
+
+
+@dataclass(frozen=True)
+class CMAES(CMAConfig, AskTellOptimizer):
+    """CMA-ES with restarts; see the module docstring for the algorithm and its sources."""
+
+    kernels = Kernels(cma_ask, cma_tell, cma_iterate)
 
     @property
     def default_budget(self) -> Budget:
@@ -288,6 +228,10 @@ class CMAES(PopulationOptimizer[CMAState]):
     def initial_evaluations(self) -> int:
         return 1
 
+    def population(self) -> int:
+        """The initial population is the start alone."""
+        return 1
+
     def planned_iterations(self, budget: Budget) -> int:
         """The iteration budget if there is one, else a large number.
 
@@ -296,212 +240,52 @@ class CMAES(PopulationOptimizer[CMAState]):
         """
         return int(budget.max_iterations) if budget.max_iterations is not None else 2**62
 
+    def params(self, bounds: Bounds, t_max: int) -> tuple:
+        n = bounds.dim
+        return pack_settings(
+            CMASettings, self, cap=injection_cap(n), lower=np.array(bounds.lower),
+            width=np.array(bounds.width), upper=np.array(bounds.upper), unit_lower=np.zeros(n),
+            unit_upper=np.ones(n),
+        )  # fmt: skip
+
+    def start(
+        self, points: np.ndarray, costs: np.ndarray, rng: np.random.Generator, params: tuple
+    ) -> CMAState:
+        """The first run, centred on the evaluated ``points[0]``."""
+        settings = CMASettings(*params)
+        return first_run(self, Bounds(settings.lower, settings.upper), points[0])
+
+    def draw_plan(self, n: int, d: int) -> DrawPlan:
+        """Not used: lambda changes at restarts, so :func:`~.cma_restarts.run_campaign` draws
+        the numbers (see :mod:`.cma_restarts`)."""
+        raise TypeError("CMA-ES draws its random numbers run by run (cma_restarts.draw)")
+
     def result_info(self, state: CMAState) -> dict[str, Any]:
-        """Restarts, why each run stopped, every run's lambda and evaluations, the last sigma.
+        return campaign_info(state)
 
-        A run's evaluations are those it learned from (the last generation of
-        a solve is evaluated but not learned from); sigma is in normalised
-        coordinates.
-        """
-        lam = state.plan.population_size
-        last = (lam, int(core_value(state.run, lam, RUN_EVALUATIONS)), "")
-        return {
-            "restarts": len(state.campaign.finished),
-            "stops": [why for _, _, why in state.campaign.finished],
-            "runs": [
-                {"population_size": p, "evaluations": e, "stop": why or None}
-                for p, e, why in (*state.campaign.finished, last)
-            ],
-            "population_size": lam,
-            "sigma": core_value(state.run, lam, SIGMA),
-        }
-
-    def init(
+    def minimize(
         self,
-        counter: EvaluationCounter,
+        objective: Any,
         bounds: Bounds,
         rng: np.random.Generator,
-        x0: np.ndarray | None,
-        max_iterations: int,
-    ) -> CMAState:
-        """The first run, centred on ``x0`` (or a uniform point), which is evaluated."""
-        start = bounds.sample(rng, 1) if x0 is None else x0[None].copy()
-        evaluate_prefix(counter, start)
-        return self.first_run(bounds, start, max_iterations)
-
-    def first_run(self, bounds: Bounds, start: np.ndarray, max_iterations: int) -> CMAState:
-        """The first run of a solve, centred on the evaluated ``start`` (one row)."""
-        default_lambda = default_population_size(bounds.dim)
-        plan = RunPlan(self.population_size or default_lambda, self.sigma0, False, math.inf)
-        mean = (start[0] - bounds.lower) / bounds.width
-        return self.start_run(bounds, mean, plan, Campaign(max_iterations, default_lambda))
-
-    def step(
-        self,
-        state: CMAState,
-        counter: EvaluationCounter,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        iteration: int,
-    ) -> CMAState:
-        # one unpacking instead of a dozen attribute reads: this runs once per generation
-        run, costs, normals, uniforms, first_iteration, plan, campaign = state
-        row = iteration - first_iteration
-        if row >= normals.shape[0]:
-            state, row = self.draw(state, rng, counter.remaining, iteration), 0
-            normals, uniforms, first_iteration = state.normals, state.uniforms, iteration
-        run = cma_generation(run, costs, normals, uniforms, row)
-        lam = plan.population_size
-        stop = run.item(lam, 0)  # the core's first entry: STOP
-        if stop != RUNNING:
-            state = self.restart(state, run, bounds, rng, STOP_NAMES[int(stop)])
-            state = self.draw(state, rng, counter.remaining, iteration)
-            run, _, normals, uniforms, first_iteration, plan, campaign = state
-            run = cma_generation(run, state.costs, normals, uniforms, 0)
-            lam = plan.population_size
-        points = run[:lam]
-        # the usual case, a whole generation within the budget, without evaluate_prefix's call
-        costs = counter(points) if counter.remaining >= lam else evaluate_prefix(counter, points)
-        return CMAState(run, costs, normals, uniforms, first_iteration, plan, campaign)
-
-    # --- the compiled solve loop -----------------------------------------------------------------
-
-    def has_compiled_loop(self) -> bool:
-        return True
-
-    def minimize_compiled(
-        self,
-        objective: CompiledObjective,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        budget: Budget,
-        x0: np.ndarray | None,
+        budget: Budget | None = None,
+        x0: np.ndarray | None = None,
     ) -> OptimizeResult:
-        """The solve of :meth:`minimize` with its generations in :func:`.cma_block` calls.
-
-        Python draws the random numbers and does the restarts, at the moments ``step``
-        does them (a block's normals when the last are used up; a restart's draws when a
-        run stops, then the new run's normals), so both loops make the same Generator
-        calls in the same order and give the same result.
-        """
-        counts, best = new_tally(bounds.dim, budget.max_evaluations)
+        """The solve: the start (``x0``, else a uniform point) evaluated, then the runs of
+        :func:`~.cma_restarts.run_campaign`, in compiled code (see
+        :func:`~formation_bench.optimizers.tallies.open_tally`)."""
         started = perf_counter()
+        rng = check_rng(rng)
+        budget = self.solve_budget(budget)
+        x0 = check_x0(x0, bounds)
+        params = self.params(bounds, self.planned_iterations(budget))
         start = bounds.sample(rng, 1) if x0 is None else x0[None].copy()
-        compiled_evaluate_prefix(objective.address, objective.data, start, counts, best)
-        state = self.first_run(bounds, start, self.planned_iterations(budget))
-        history_nfev = [int(counts[NFEV])]
-        history_fun = [float(best[0])]
-        iteration_limit = compiled_iteration_limit(budget)
-        message = "iteration budget reached"
-        nit = 0
-        deadline_s = budget.deadline_s
-        while nit < iteration_limit:
-            if remaining(counts) <= 0:
-                message = "evaluation budget reached"
-                break
-            # checked before every generation, as the Python loop does: one per call then
-            if deadline_s is not None and perf_counter() - started >= deadline_s:
-                message = "deadline reached"
-                break
-            if nit + 1 - state.first_iteration >= state.normals.shape[0]:
-                state = self.draw(state, rng, int(remaining(counts)), nit + 1)
-            rows = state.normals.shape[0]
-            block_nfev = np.empty(rows, dtype=np.int64)
-            block_fun = np.empty(rows)
-            run, costs, done, stopped = cma_block(
-                objective.address, objective.data, counts, best, state.run, state.costs,
-                state.normals, state.uniforms, nit, state.first_iteration,
-                nit + 1 if deadline_s is not None else iteration_limit, block_nfev, block_fun,
-            )  # fmt: skip
-            history_nfev.extend(block_nfev[:done].tolist())
-            history_fun.extend(block_fun[:done].tolist())
-            nit += done
-            state = state._replace(run=run, costs=costs)
-            if stopped:
-                # the new run's first generation only samples (no costs to learn from), so it
-                # cannot stop: the next block call does iteration nit + 1 with it
-                why = STOP_NAMES[int(core_value(run, state.plan.population_size, STOP))]
-                state = self.restart(state, run, bounds, rng, why)
-                state = self.draw(state, rng, int(remaining(counts)), nit + 1)
-        else:
-            if remaining(counts) <= 0:
-                message = "evaluation budget reached"
-        return compiled_result(
-            CompiledStart(counts, best, started), nit, message, history_nfev, history_fun,
-            self.result_info(state),
-        )  # fmt: skip
-
-    # --- runs and restarts -----------------------------------------------------------------------
-
-    def start_run(
-        self, bounds: Bounds, mean: np.ndarray, plan: RunPlan, campaign: Campaign
-    ) -> CMAState:
-        """A run centred on ``mean`` (normalised coordinates), with nothing drawn ahead yet."""
-        n, lam = bounds.dim, plan.population_size
-        template = run_template(
-            n, lam, self.active, self.tol_fun, self.tol_x, int(self.bound_handling),
-            self.lamarckian, int(self.constants),
-        )  # fmt: skip
-        if self.bound_handling is CMABoundHandling.TRANSFORM:
-            # as pycma starts from inverse(x0): the transform maps the first mean onto the start
-            mean = linquad_inverse(mean, np.zeros(n), np.ones(n))
-        run = new_run(template, lam, mean, plan.sigma0, bounds.lower, bounds.upper, plan.limit)
-        nothing = np.empty((0, lam, n))
-        return CMAState(run, np.empty(0), nothing, nothing, 1, plan, campaign)
-
-    def draw(
-        self, state: CMAState, rng: np.random.Generator, left_evaluations: int, iteration: int
-    ) -> CMAState:
-        """Random numbers for the next generations from ``iteration`` on, in one call per kind.
-
-        As far ahead as the ``left_evaluations`` of the budget reach (at most
-        :data:`~formation_bench.optimizers.population.ROWS_AHEAD` generations):
-        resample uniforms first (if used), then normals.
-        """
-        lam, n = state.plan.population_size, state.run.shape[1]
-        left = min(state.campaign.t_max - iteration + 1, -(-left_evaluations // lam))
-        rows = min(max(left, 1), ROWS_AHEAD)
-        resample = self.bound_handling is CMABoundHandling.RESAMPLE
-        uniforms = rng.random((rows, lam, n)) if resample else None
-        normals = rng.standard_normal((rows, lam, n))
-        return state._replace(
-            normals=normals,
-            uniforms=normals if uniforms is None else uniforms,
-            first_iteration=iteration,
-        )
-
-    def restart(
-        self, state: CMAState, run: np.ndarray, bounds: Bounds, rng: np.random.Generator, why: str
-    ) -> CMAState:
-        """The next run after ``run`` stopped for ``why``, from a uniform point of the box."""
-        campaign = state.campaign
-        used = int(core_value(run, state.plan.population_size, RUN_EVALUATIONS))
-        large = campaign.large_evaluations + (used if state.plan.large else 0)
-        small = campaign.small_evaluations + (0 if state.plan.large else used)
-        doublings = campaign.doublings
-        default = campaign.default_lambda
-        if self.restarts is Restarts.SAME:
-            plan = RunPlan(default, self.sigma0, True, math.inf)
-        elif self.restarts is Restarts.IPOP or small >= max(1, large):
-            doublings = min(doublings + 1, MAX_DOUBLINGS)
-            plan = RunPlan(default * 2**doublings, self.sigma0, True, math.inf)
-        else:
-            u = rng.random(2)
-            lam = math.floor(default * (2.0**doublings) ** (u[0] ** 2))
-            plan = RunPlan(lam, self.sigma0 * 10.0 ** (-2.0 * u[1]), False, 0.5 * large)
-        campaign = campaign._replace(
-            large_evaluations=large,
-            small_evaluations=small,
-            doublings=doublings,
-            finished=(*campaign.finished, (state.plan.population_size, used, why)),
-        )
-        return self.start_run(bounds, rng.random(bounds.dim), plan, campaign)
-
-
-def core_value(run: np.ndarray, lam: int, index: int) -> float:
-    """Scalar ``index`` of the core of ``run`` (a generation's result with ``lam`` point rows)."""
-    n = run.shape[1]
-    return float(run[lam + index // n, index % n])
+        tally = open_tally(objective, bounds.dim, budget, started, compiled_loop=True)
+        tally.evaluate_prefix(start)
+        state = first_run(self, bounds, start[0])
+        state, nit, message, history = run_campaign(self, state, params, tally, rng, budget,
+                                                    bounds)  # fmt: skip
+        return tally.result(nit, message, history, self.result_info(state))
 
 
 register(

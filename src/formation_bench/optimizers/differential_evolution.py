@@ -1,127 +1,268 @@
 """Differential evolution: DE/rand/1/bin and DE/current-to-best/1/bin, configurations of one class.
 
-Storn, R. & Price, K. (1997). *Differential Evolution - A Simple and
-Efficient Heuristic for Global Optimization over Continuous Spaces*. Journal
-of Global Optimization 11, 341-359.
+After Storn & Price, "Differential Evolution - A Simple and Efficient Heuristic for Global
+Optimization over Continuous Spaces", J. Global Optimization 11, 1997. For each member ``x_i``:
+a mutant ``v = x_r1 + F (x_r2 - x_r3)`` (rand/1, ``de``) or ``x_i + F (x_best - x_i) +
+F (x_r1 - x_r2)`` (current-to-best/1, one F for both terms as in scipy), partners distinct and
+not ``i``; binomial crossover (coordinate ``j`` from ``v`` when a uniform is below CR or ``j =
+j_rand``, so every trial differs from its target); coordinates outside the box re-drawn
+uniformly (scipy's rule, the default; or clipped or reflected); the trial replaces ``x_i`` when
+its cost is *no higher* (ties let the population cross plateaus). Deferred updating (the
+default) makes the N trials from the population at the start of the generation, evaluates them
+in one batch, then selects; immediate updating (scipy's default, ``de-immediate``) makes trial
+``i`` from the population trials ``0 .. i-1`` left, evaluates and selects it at once, and moves
+``x_best`` as soon as a trial beats it. F = 0.5, CR = 0.9 are Storn & Price's suggested start;
+N = 30 and 40 generations give the other population optimisers' ~1230 evaluations. The warm
+start is member 0 (:class:`~formation_bench.optimizers.population.WarmStartInit` for a share
+drawn around it, ``de-immediate-warm``).
 
-Per generation, for every member ``x_i`` of the N-member population:
-
-* **mutation**: ``v = x_r1 + F (x_r2 - x_r3)`` (rand/1, ``de``) or
-  ``v = x_i + F (x_best - x_i) + F (x_r1 - x_r2)`` (current-to-best/1,
-  ``de-current-to-best``, with one F for both terms as in scipy and in Das &
-  Suganthan's survey), the partners ``r1, r2, r3`` distinct and not ``i``,
-  ``x_best`` the best member at the start of the generation;
-* **binomial crossover**: coordinate ``j`` of the trial comes from ``v`` when a
-  uniform draw is below CR or ``j = j_rand`` (one random coordinate per
-  member, so every trial differs from its target), else from ``x_i``;
-* **bounds**: a trial coordinate outside the box is re-drawn uniformly in its
-  range (``bound_handling=resample``, the default: the rule of scipy's
-  ``differential_evolution``, which keeps the population spread where
-  clipping would pile members onto the faces). ``clip`` and ``reflect`` are
-  the project's other options. Only mutant coordinates can leave the box;
-* **selection**: trial ``i`` replaces ``x_i`` when its cost is *no higher*
-  (Storn & Price's rule; ties let the population cross plateaus). With
-  ``updating=deferred`` (the default, Storn & Price's scheme) the N trials are
-  made from the population at the start of the generation, evaluated in one
-  batch, then selected. With ``updating=immediate`` (scipy's default,
-  ``de-immediate``) trial ``i`` is made from the population as trials
-  ``0 .. i-1`` left it, evaluated alone and selected at once, and the best
-  member (current-to-best/1's ``x_best``) is updated as soon as a trial beats
-  it: later trials of a generation already use the improvements of earlier
-  ones.
-
-The defaults F = 0.5, CR = 0.9 are Storn & Price's suggested start; N = 30
-and 40 generations give the ~1230 evaluations of the other population
-optimisers' default budget (Storn & Price suggest N = 5-10 D, which at the
-paper problem's D = 10 would leave 12-25 generations). The warm start ``x0``
-is member 0 of the initial population; with ``warm_start_share`` > 0 (see
-:class:`~formation_bench.optimizers.population.WarmStartInit`, ``de-immediate-warm``)
-that share of the other members is drawn around it.
-
-A deferred generation is one compiled call
-(:func:`~formation_bench.optimizers.de_ops.de_generation`) besides the
-objective call, with the selection of a generation's trials deferred into the
-next call, and the random numbers drawn ahead
-(:func:`~formation_bench.optimizers.population.iteration_randoms`). An
-immediate generation of a compiled solve is one compiled call too, objective
-calls included (:func:`~formation_bench.optimizers.de_ops.immediate_generation`).
-Both updating modes read the same random numbers per generation.
+A generation is written once, as the kernels :func:`de_ask` and :func:`de_tell`: one round when
+deferred, one round per trial when immediate. Its uniforms, drawn ahead, hold per member ``i``
+the block ``u[i (4 + D) : (i + 1) (4 + D)]``: three picking the partners (:func:`partners_into`),
+one ``j_rand``, ``D`` crossover draws; with ``resample``, ``N D`` re-draws follow (member ``i``'s
+at ``N (4 + D) + i D``). Both updating modes read this layout, so they draw the same numbers.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import IntEnum
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
-from formation_bench.optimizers.base import (
-    Bounds,
-    Budget,
-    EvaluationCounter,
-    OptimizeResult,
-    PopulationOptimizer,
+from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.optimizers.ask_tell import (
+    AskTellOptimizer,
+    DrawPlan,
+    Kernels,
+    iterate,
+    register_kernels,
 )
-from formation_bench.optimizers.compiled import CompiledObjective
-from formation_bench.optimizers.de_ops import (
-    DEConfig,
-    DEStrategy,
-    DEUpdating,
-    best_member,
-    de_block,
-    de_generation,
-    immediate_trial,
-    select_trial_inplace,
-    select_trials,
-)
-from formation_bench.optimizers.population import (
-    RandomAhead,
-    WarmStartInit,
-    compiled_initial_population,
-    initial_population,
-    iteration_randoms,
-    no_randoms,
-    run_compiled_blocks,
-)
+from formation_bench.optimizers.base import Bounds, Budget
+from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
+from formation_bench.optimizers.population import WarmStartInit
 from formation_bench.optimizers.registry import register
+
+PARTNER_UNIFORMS = 3
+"""Uniforms per member that pick its partners (rand/1 needs three, current-to-best/1 two)."""
+
+
+class DEStrategy(IntEnum):
+    """How the mutant of member ``i`` is built (``r1, r2, r3`` distinct and not ``i``)."""
+
+    RAND_1_BIN = 0
+    """``v = x_r1 + F (x_r2 - x_r3)``, binomial crossover (Storn & Price's DE1)."""
+    CURRENT_TO_BEST_1_BIN = 1
+    """``v = x_i + F (x_best - x_i) + F (x_r1 - x_r2)``, binomial crossover."""
+
+
+class DEUpdating(IntEnum):
+    """When the trials of a generation replace their targets."""
+
+    DEFERRED = 0
+    """A generation's trials evaluated in one batch, then selected (Storn & Price)."""
+    IMMEDIATE = 1
+    """Each trial evaluated and selected before the next is made (scipy's default)."""
+
+
+PER_SOLVE = ("lower", "upper")
+"""The kernel settings fixed per solve rather than per configuration, after the declared ones."""
+
+
+@dataclass(frozen=True)
+class DEConfig(Validated):
+    """The settings of differential evolution, declared once: the fields marked ``kernel=True``
+    make :class:`DESettings`, which the kernels rebuild and read by name."""
+
+    population_size: int = setting(
+        30, low=4, doc="N, members (rand/1 needs three partners besides the member)"
+    )
+    max_iterations: int = setting(
+        40, low=0,
+        doc="Generations when the caller gives no budget; the default budget is N (T + 1)",
+    )  # fmt: skip
+    strategy: DEStrategy = setting(
+        DEStrategy.RAND_1_BIN, kernel=True,
+        doc="Mutant: x_r1 + F (x_r2 - x_r3), or x_i + F (x_best - x_i + x_r1 - x_r2)",
+    )  # fmt: skip
+    differential_weight: float = setting(
+        0.5, low=0.0, high=2.0, low_open=True, kernel=True,
+        doc="F, the scale of the difference vectors",
+    )  # fmt: skip
+    crossover_rate: float = setting(
+        0.9, low=0.0, high=1.0, kernel=True,
+        doc="CR, probability that a coordinate (besides j_rand) comes from the mutant",
+    )  # fmt: skip
+    bound_handling: BoundHandling = setting(
+        BoundHandling.RESAMPLE, kernel=True,
+        doc="How trial coordinates outside the box are brought back: clip, reflect or resample",
+    )  # fmt: skip
+    updating: DEUpdating = setting(
+        DEUpdating.DEFERRED, kernel=True,
+        doc="deferred: a generation's trials are evaluated in one batch, then selected; "
+        "immediate: each trial is selected before the next is made (scipy's default)",
+    )  # fmt: skip
+
+    def uniforms_per_step(self, n: int, d: int) -> int:
+        """Uniforms one generation of ``n`` members in ``d`` dimensions reads (module docstring)."""
+        resample = self.bound_handling is BoundHandling.RESAMPLE
+        return n * (PARTNER_UNIFORMS + 1 + d) + (n * d if resample else 0)
+
+
+DESettings = kernel_settings_class(
+    "DESettings", __name__, DEConfig, PER_SOLVE,
+    """What the kernels read, fixed during a solve: the kernel fields of :class:`DEConfig` (enums
+    as integers), then the bounds (private writable copies: numba compiles read-only arrays
+    separately).""",
+)  # fmt: skip
 
 
 class DEState(NamedTuple):
-    """Population, the last generation's trials, and bookkeeping (arrays never modified in place).
-
-    With deferred updating the selection of a generation's trials is applied
-    at the start of the next generation, in the same compiled call that makes
-    the next trials; :meth:`population` applies the pending selection. With
-    immediate updating nothing is pending: ``trials`` has no rows.
-    """
+    """The population between rounds. Kernels return a new state; they modify no state but
+    those of an immediate generation's rounds, whose arrays the generation copied for itself."""
 
     x: np.ndarray
-    """Members before the selection of ``trials``, shape (N, D)."""
+    """Members, shape (N, D)."""
     f: np.ndarray
     """Their costs (+inf for members not evaluated for lack of budget)."""
-    trials: np.ndarray
-    """The last generation's evaluated trials, one per slot from 0 (0 rows at first)."""
-    trial_costs: np.ndarray
-    """Their costs."""
-    settings: tuple
-    """The packed :class:`~formation_bench.optimizers.de_ops.DESettings` of the solve."""
-    t_max: int
-    """Planned generations (how far ahead random numbers are drawn)."""
-    randoms: RandomAhead
-    """Random numbers drawn ahead for the next generations."""
+    generation: int
+    """Immediate updating: the generation whose trials are being made (0 before the first)."""
+    member: int
+    """Immediate updating: the member whose trial was asked last."""
+    best: int
+    """Immediate updating: the best member as the generation's trials so far left it."""
 
-    def population(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(x, f)`` after the pending selection of ``trials``."""
-        return select_trials(self.x, self.f, self.trials, self.trial_costs)
+
+# inline: called once per member with the caller's scratch, so that a member allocates nothing
+@njit(cache=True, inline="always")
+def partners_into(i: int, n: int, u: np.ndarray, out: np.ndarray, taken: np.ndarray) -> None:
+    """Fill ``out`` with indices in ``[0, n)``, distinct and none equal to ``i``.
+
+    The k-th is ``floor(u[k] (n - 1 - k))`` counted among the indices not yet taken (``i`` and
+    the earlier partners): each ordered choice is equally likely, and the values depend only on
+    ``u``. ``taken`` is scratch of ``len(out) + 1`` entries; needs ``n > len(out)``.
+    """
+    taken[0] = i
+    count = 1
+    for k in range(out.shape[0]):
+        r = min(int(u[k] * (n - count)), n - count - 1)
+        # the r-th free index: walk the taken ones in increasing order, skipping each
+        for a in range(count):
+            for b in range(a + 1, count):
+                if taken[b] < taken[a]:
+                    taken[a], taken[b] = taken[b], taken[a]
+        for a in range(count):
+            if r >= taken[a]:
+                r += 1
+        out[k] = r
+        taken[count] = r
+        count += 1
+
+
+# inline: called once per member, so that a generation's trials stay one loop
+@njit(cache=True, inline="always")
+def mutant_into(out, x, i, best, s, uniforms, scratch):  # type: ignore[no-untyped-def]
+    """Member ``i``'s trial before bound handling into the row ``out``: mutation (around the
+    member ``best`` for current-to-best/1), binomial crossover; ``s`` the :class:`DESettings`,
+    ``uniforms`` the generation's, ``scratch`` ``2 PARTNER_UNIFORMS + 1`` integers."""
+    n, d = x.shape
+    block = PARTNER_UNIFORMS + 1 + d
+    u = uniforms[i * block : (i + 1) * block]
+    partners, taken = scratch[:PARTNER_UNIFORMS], scratch[PARTNER_UNIFORMS:]
+    used = PARTNER_UNIFORMS if s.strategy == DEStrategy.RAND_1_BIN else PARTNER_UNIFORMS - 1
+    partners_into(i, n, u[:used], partners[:used], taken)
+    a, b, c = partners[0], partners[1], partners[2]
+    j_rand = min(int(u[PARTNER_UNIFORMS] * d), d - 1)
+    for j in range(d):
+        if j != j_rand and not u[PARTNER_UNIFORMS + 1 + j] < s.crossover_rate:
+            out[j] = x[i, j]
+        elif s.strategy == DEStrategy.RAND_1_BIN:
+            out[j] = x[a, j] + s.differential_weight * (x[b, j] - x[c, j])
+        else:
+            out[j] = x[i, j] + s.differential_weight * (x[best, j] - x[i, j] + x[a, j] - x[b, j])
+
+
+@njit(cache=True)
+def redraws_of(s, uniforms, n, d, member, rows):  # type: ignore[no-untyped-def]
+    """The re-draws of members ``member .. member + rows - 1``, shape ``(rows, D)``: the
+    values ``resample`` puts in place of their coordinates outside the box (else empty)."""
+    if s.bound_handling != BoundHandling.RESAMPLE:
+        return np.empty((0, d))
+    first = n * (PARTNER_UNIFORMS + 1 + d) + member * d
+    return np.ascontiguousarray(uniforms[first : first + rows * d]).reshape(rows, d)
+
+
+@njit(cache=True, inline="always")
+def de_ask(state, params, uniforms, normals, iteration, remaining):  # type: ignore[no-untyped-def]
+    """The generation's N trials (deferred), or the next member's trial alone (immediate: the
+    generation's last round is its last member's, or the last evaluation's). Only mutant
+    coordinates can leave the box."""
+    s = DESettings(*params)
+    n, d = state.x.shape
+    scratch = np.empty(2 * PARTNER_UNIFORMS + 1, dtype=np.int64)
+    if s.updating == DEUpdating.DEFERRED:
+        trials = np.empty((n, d))
+        best = np.argmin(state.f)
+        for i in range(n):
+            mutant_into(trials[i], state.x, i, best, s, uniforms, scratch)
+        redraws = redraws_of(s, uniforms, n, d, 0, n)
+        apply_bounds_inplace(trials, s.lower, s.upper, s.bound_handling, redraws)
+        return state, trials, True
+    if iteration != state.generation:
+        # the generation's own copies, into which its rounds' selections are written
+        x, f = state.x.copy(), state.f.copy()
+        member, best = 0, np.argmin(f)
+    else:
+        x, f, member, best = state.x, state.f, state.member + 1, state.best
+    trial = np.empty((1, d))
+    mutant_into(trial[0], x, member, best, s, uniforms, scratch)
+    redraws = redraws_of(s, uniforms, n, d, member, 1)
+    apply_bounds_inplace(trial, s.lower, s.upper, s.bound_handling, redraws)
+    last = member == n - 1 or remaining <= 1
+    return DEState(x, f, iteration, member, best), trial, last
+
+
+@njit(cache=True, inline="always")
+def de_tell(state, params, candidates, costs, iteration):  # type: ignore[no-untyped-def]
+    """Storn & Price's selection of the evaluated trials: a trial replaces its target when its
+    cost is no higher (NaN never: the loops map it to +inf). With immediate updating, a trial
+    strictly below the best member's cost becomes the best (scipy too keeps its best on a tie)."""
+    s = DESettings(*params)
+    x, f, best, first = state.x, state.f, state.best, state.member
+    if s.updating == DEUpdating.DEFERRED:
+        x, f, first = x.copy(), f.copy(), 0
+    # immediate: x and f are the generation's copies (de_ask), written trial by trial
+    for k in range(costs.shape[0]):
+        i = first + k
+        if costs[k] <= f[i]:
+            # element loops, not a row assignment: see population.greedy_select
+            for c in range(x.shape[1]):
+                x[i, c] = candidates[k, c]
+            f[i] = costs[k]
+            if f[i] < f[best]:
+                best = i
+    return DEState(x, f, state.generation, state.member, best)
+
+
+register_kernels(DEState, de_ask, de_tell)
+
+
+@njit(cache=True)
+def de_iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def]
+    """:func:`~formation_bench.optimizers.ask_tell.iterate` with the DE kernels."""
+    return iterate(state, params, block, nit, rows)
 
 
 # WarmStartInit before DEConfig: a dataclass lists the fields of its bases from the last in
 # the MRO, so the DE settings come first and the initialisation's after them
 @dataclass(frozen=True)
-class DifferentialEvolution(WarmStartInit, DEConfig, PopulationOptimizer[DEState]):
-    """Storn & Price's DE; the settings are those of
-    :class:`~formation_bench.optimizers.de_ops.DEConfig` and the initial population's of
-    :class:`~formation_bench.optimizers.population.WarmStartInit`."""
+class DifferentialEvolution(WarmStartInit, DEConfig, AskTellOptimizer):
+    """Storn & Price's DE; the settings are those of :class:`DEConfig` and the initial
+    population's of :class:`~formation_bench.optimizers.population.WarmStartInit`."""
+
+    kernels = Kernels(de_ask, de_tell, de_iterate)
 
     @property
     def default_budget(self) -> Budget:
@@ -130,95 +271,18 @@ class DifferentialEvolution(WarmStartInit, DEConfig, PopulationOptimizer[DEState
     def evaluations_per_step(self) -> int:
         return self.population_size
 
-    def init(
-        self,
-        counter: EvaluationCounter,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        x0: np.ndarray | None,
-        max_iterations: int,
+    def params(self, bounds: Bounds, t_max: int) -> tuple:
+        return pack_settings(
+            DESettings, self, lower=np.array(bounds.lower), upper=np.array(bounds.upper)
+        )
+
+    def start(
+        self, points: np.ndarray, costs: np.ndarray, rng: np.random.Generator, params: tuple
     ) -> DEState:
-        """N members (member 0 = ``x0`` if given, a share around it by the warm-start settings),
-        evaluated in one batch within budget."""
-        x, f = initial_population(counter, bounds, rng, self.population_size, x0, init=self)
-        n, d = x.shape
-        return DEState(
-            x=x,
-            f=f,
-            trials=np.empty((0, d)),
-            trial_costs=np.empty(0),
-            settings=self.de_settings(bounds),
-            t_max=int(max_iterations),
-            randoms=no_randoms(self.uniforms_per_step(n, d), (0,)),
-        )
+        return DEState(points, costs, 0, 0, 0)
 
-    def step(
-        self,
-        state: DEState,
-        counter: EvaluationCounter,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        iteration: int,
-    ) -> DEState:
-        """One generation.
-
-        With immediate updating each trial must be evaluated before the next one
-        is made, so this Python path calls ``counter`` once per trial (N calls of
-        one row instead of one call of N); the compiled path
-        (:meth:`minimize_compiled`) makes those calls inside its kernel.
-        """
-        randoms, u, _ = iteration_randoms(state.randoms, rng, iteration, state.t_max)
-        if self.updating is DEUpdating.IMMEDIATE:
-            x, f = state.population()  # new arrays, which the loop below updates in place
-            best = best_member(f)
-            for i in range(min(x.shape[0], counter.remaining)):
-                trial = immediate_trial(x, i, best, u, state.settings)
-                best = select_trial_inplace(x, f, i, best, trial, counter(trial)[0])
-            return state._replace(x=x, f=f, randoms=randoms)
-        x, f, trials = de_generation(
-            state.x, state.f, state.trials, state.trial_costs, u, state.settings
-        )
-        # a generation the budget cuts short evaluates its first trials; only those compete
-        allowed = min(trials.shape[0], counter.remaining)
-        if allowed < trials.shape[0]:
-            trials = trials[:allowed]
-        costs = counter(trials)
-        return DEState(x, f, trials, costs, state.settings, state.t_max, randoms)
-
-    def has_compiled_loop(self) -> bool:
-        return True
-
-    def minimize_compiled(
-        self,
-        objective: CompiledObjective,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        budget: Budget,
-        x0: np.ndarray | None,
-    ) -> OptimizeResult:
-        t_max = self.planned_iterations(budget)
-        x, f, start = compiled_initial_population(
-            objective, bounds, rng, self.population_size, x0, budget.max_evaluations, init=self
-        )
-        n, d = x.shape
-        settings = self.de_settings(bounds)
-        carry = [x, f, np.empty((0, d)), np.empty(0)]
-
-        def run_block(
-            nit: int, limit: int, randoms: RandomAhead, history_nfev: np.ndarray,
-            history_fun: np.ndarray,
-        ) -> int:  # fmt: skip
-            x, f, trials, trial_costs, done = de_block(
-                objective.address, objective.data, start.counts, start.best, *carry,
-                randoms.uniforms, nit, randoms.first_iteration, limit, settings,
-                history_nfev, history_fun,
-            )  # fmt: skip
-            carry[:] = [x, f, trials, trial_costs]
-            return done
-
-        return run_compiled_blocks(
-            run_block, start, rng, budget, t_max, self.uniforms_per_step(n, d), (0,), dict
-        )
+    def draw_plan(self, n: int, d: int) -> DrawPlan:
+        return DrawPlan(self.uniforms_per_step(n, d))
 
 
 register(

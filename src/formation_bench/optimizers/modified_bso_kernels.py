@@ -1,34 +1,38 @@
-"""The modified BSO's iteration as compiled kernels (driven by :mod:`.modified_bso`).
+"""The modified BSO's settings, state and ask/tell kernels (the optimiser:
+:mod:`.modified_bso`).
 
-One iteration of :class:`~formation_bench.optimizers.modified_bso.ModifiedBSO` is one call of
-:func:`modified_bso_iteration` besides the objective calls: at a population of
-30 a Python-level call into a kernel costs about as much as its arithmetic, so
-the selection of the previous ideas, the k-means step, the centre replacement
-and the new ideas are fused. Like :mod:`formation_bench.optimizers.bso_ops`, the kernels are
-pure: random numbers come in as arrays and inputs are never modified.
+An iteration is one or two ask/tell rounds. When the chaotic centre replacement is drawn
+(and at least ``n_r`` evaluations are left), the first round asks for its ``n_r`` chaotic
+candidates (eqs. 6-7), which do not depend on the clustering; the last round clusters the
+population, installs the best candidate in place of a random centre, and asks for the ``N``
+ideas of eqs. (8)-(10), which its tell selects slot by slot.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from formation_bench.fields import Validated, kernel_settings_class, setting
+from formation_bench.optimizers.ask_tell import iterate, register_kernels
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
+    all_centre_auxiliary,
+    bso_draws,
     chaotic_candidates,
-    cluster_population,
-    generate_ideas,
+    clusters_of,
     install_best,
     logsig_factor,
+    move_ideas,
     random_centre,
+    shi_select,
 )
 from formation_bench.optimizers.chaos import ChaoticMap
 from formation_bench.optimizers.clustering import DEFAULT_MAX_ITER, ClusteringBackend
-from formation_bench.optimizers.compiled import NFEV, evaluate, evaluate_prefix, remaining
 from formation_bench.optimizers.original_bso_kernels import PER_SOLVE
 from formation_bench.optimizers.population import greedy_select
 
@@ -54,17 +58,18 @@ class ModifiedBSOConfig(Validated):
         doc="k, slope of the logsig step-size schedule of eq. (10)",
     )  # fmt: skip
     p_replace: float = setting(
-        0.2, low=0.0, high=1.0,
+        0.2, low=0.0, high=1.0, kernel=True,
         doc="p_r, probability per iteration of a chaotic centre replacement",
     )  # fmt: skip
-    n_replace: int = setting(10, low=1, doc="n_r, chaotic candidates per replacement")
+    n_replace: int = setting(10, low=1, kernel=True, doc="n_r, chaotic candidates per replacement")
     n_weight_iterations: int = setting(
         10, low=0, kernel=True,
         doc="n_h, iterations of the weight map from the random seed ch(0)",
     )  # fmt: skip
     replacement_map: ChaoticMap = setting(
-        ChaoticMap.LOGISTIC, doc="f_rmap, chaotic map of the replacement candidates (eq. 6)"
-    )
+        ChaoticMap.LOGISTIC, kernel=True,
+        doc="f_rmap, chaotic map of the replacement candidates (eq. 6)",
+    )  # fmt: skip
     weight_map: ChaoticMap = setting(
         ChaoticMap.LOGISTIC, kernel=True, doc="f_hmap, chaotic map of the centre weights (eq. 8)"
     )
@@ -100,7 +105,7 @@ class ModifiedBSOConfig(Validated):
         doc="Shi's p_6c: two-cluster idea mixes the centres, else random members",
     )  # fmt: skip
     chaos_replacement: bool = setting(
-        True, doc="Ablation switch: chaotic centre replacement (eqs. 6-7)"
+        True, kernel=True, doc="Ablation switch: chaotic centre replacement (eqs. 6-7)"
     )
     all_centre_weighting: bool = setting(
         True, kernel=True,
@@ -119,158 +124,86 @@ KernelSettings = kernel_settings_class(
     separately).""",
 )
 
+STARTING, REPLACEMENT_ASKED, REPLACEMENT_TOLD = 0, 1, 2
+"""Stages of an iteration (:attr:`ModifiedBSOState.stage`): the next ask starts one; the
+replacement candidates are out for evaluation; their costs are in, the ideas come next."""
 
-# inline: a thin layer. Every compiled call boundary re-optimises the whole callee tree
-# below it when the caller is built, so thin layers cost cold-start seconds; see docs/design.md
+
+class ModifiedBSOState(NamedTuple):
+    """The population between ask/tell rounds (kernels return a new state, never modify one)."""
+
+    x: np.ndarray
+    """Population, shape (N, D)."""
+    f: np.ndarray
+    """Its costs (+inf for members not evaluated for lack of budget)."""
+    stage: int
+    """Where the iteration stands: ``STARTING``, ``REPLACEMENT_ASKED`` or ``REPLACEMENT_TOLD``."""
+    candidates: np.ndarray
+    """The last chaotic replacement candidates, (n_r, D); 0 rows before the first."""
+    candidate_costs: np.ndarray
+    """Their costs."""
+    labels: np.ndarray
+    """Cluster labels of ``x`` computed outside the kernels (scikit-learn's k-means); empty:
+    the ask clusters with the compiled k-means."""
+    replacements: int
+    """Chaotic replacements performed so far."""
+
+
 @njit(cache=True, inline="always")
-def ideas_from_clusters(
-    x: np.ndarray,
-    f: np.ndarray,
-    labels: np.ndarray,
-    centre_index: np.ndarray,
-    sizes: np.ndarray,
-    u: np.ndarray,
-    normals: np.ndarray,
-    replace: bool,
-    candidates: np.ndarray,
-    candidate_costs: np.ndarray,
-    iteration: int,
-    packed: tuple,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One iteration after the clustering: ``(x, f, ideas)``.
-
-    With ``replace``, the best of the evaluated chaotic ``candidates`` takes
-    the place of a random centre (eq. 7); then the N ideas of eqs. (8)-(10)
-    (or Shi's selection when all-centre weighting is off) are made from the
-    clusters, with the logsig factor of ``iteration`` out of T_max. ``u`` is the
-    iteration's uniforms in the layout of :meth:`ModifiedBSO.step`;
-    ``candidates`` and ``candidate_costs`` are read only with ``replace``.
-    ``packed`` is :meth:`ModifiedBSO.kernel_settings`.
-    """
-    s = KernelSettings(*packed)
-    n, d = x.shape
-    m = s.n_clusters
-    width = m if s.all_centre_weighting else SHI_UNIFORMS_PER_IDEA
-    ideas_at = m + 2 + d
-    rand_at = ideas_at + n * width
-    resample_at = rand_at + n
-    if replace:
-        slot = random_centre(centre_index, u[m + 1])
-        x, f = install_best(x, f, slot, candidates, candidate_costs)
-    resample = u[resample_at:].reshape(n, d) if u.shape[0] > resample_at else normals
-    ideas = generate_ideas(
-        x,
-        labels,
-        centre_index,
-        sizes,
-        u[ideas_at:rand_at].reshape(n, width),
-        all_centre_weighting=s.all_centre_weighting,
-        weight_map=s.weight_map,
-        n_weight_iterations=s.n_weight_iterations,
-        normalise_weights=s.normalise_weights,
-        p_one_cluster=s.p_one_cluster,
-        p_one_centre=s.p_one_centre,
-        p_two_centres=s.p_two_centres,
-        factor=logsig_factor(iteration, t_max=s.t_max, slope=s.slope),
-        rand=u[rand_at:resample_at],
-        normals=normals,
-        scale=s.scale,
-        lower=s.lower,
-        upper=s.upper,
-        bound_handling=s.bound_handling,
-        resample_uniforms=resample,
-    )
-    return x, f, ideas
+def modified_bso_ask(state, params, uniforms, normals, iteration, remaining):  # type: ignore[no-untyped-def]
+    """The replacement candidates when the replacement is drawn at the start of an iteration
+    (not last), else the N ideas (last). ``uniforms`` and ``normals``: :class:`~formation_bench.
+    optimizers.bso_ops.BSODraws` with the sources of width m (all-centre weighting) or 7."""
+    s = KernelSettings(*params)
+    width = s.n_clusters if s.all_centre_weighting else SHI_UNIFORMS_PER_IDEA
+    draws = bso_draws(uniforms, normals, n_clusters=s.n_clusters, width=width)
+    x, f = state.x, state.f
+    if state.stage == STARTING and s.chaos_replacement and draws.replace_draw < s.p_replace:
+        # all n_r candidates or none: when fewer evaluations are left the ideas get them
+        if remaining >= s.n_replace:
+            candidates = chaotic_candidates(
+                replacement_map=s.replacement_map, seed=draws.point, n_replace=s.n_replace,
+                lower=s.lower, upper=s.upper,
+            )  # fmt: skip
+            asked = ModifiedBSOState(x, f, REPLACEMENT_ASKED, candidates, state.candidate_costs,
+                                     state.labels, state.replacements)  # fmt: skip
+            return asked, candidates, False
+    clusters = clusters_of(x, f, state.labels, draws.kmeans, kmeans_max_iter=s.kmeans_max_iter)
+    if state.stage == REPLACEMENT_TOLD:
+        slot = random_centre(clusters.centre_index, draws.centre_draw)
+        x, f = install_best(x, f, slot, state.candidates, state.candidate_costs)
+    if s.all_centre_weighting:
+        auxiliary = all_centre_auxiliary(
+            x, clusters.centre_index, draws.sources, weight_map=s.weight_map,
+            n_weight_iterations=s.n_weight_iterations, normalise_weights=s.normalise_weights,
+        )  # fmt: skip
+    else:
+        auxiliary = shi_select(
+            x, clusters, draws.sources, p_one_cluster=s.p_one_cluster,
+            p_one_centre=s.p_one_centre, p_two_centres=s.p_two_centres,
+        )  # fmt: skip
+    ideas = move_ideas(auxiliary, logsig_factor(iteration, t_max=s.t_max, slope=s.slope), draws, s)
+    asked = ModifiedBSOState(x, f, STARTING, state.candidates, state.candidate_costs,
+                             state.labels, state.replacements)  # fmt: skip
+    return asked, ideas, True
 
 
-# inline: the compiled solve loop (modified_bso_block) is its usual caller, and a run that
-# solves only through that loop then never builds this kernel on its own
 @njit(cache=True, inline="always")
-def modified_bso_iteration(
-    x: np.ndarray,
-    f: np.ndarray,
-    ideas: np.ndarray,
-    idea_costs: np.ndarray,
-    u: np.ndarray,
-    normals: np.ndarray,
-    replace: bool,
-    candidates: np.ndarray,
-    candidate_costs: np.ndarray,
-    iteration: int,
-    packed: tuple,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A whole iteration except the evaluations, in one call: ``(x, f, ideas)``.
+def modified_bso_tell(state, params, candidates, costs, iteration):  # type: ignore[no-untyped-def]
+    """Keep the replacement candidates' costs for the ideas' round, or select the ideas: each
+    evaluated idea replaces the member of its slot when strictly better."""
+    if state.stage == REPLACEMENT_ASKED:
+        return ModifiedBSOState(state.x, state.f, REPLACEMENT_TOLD, candidates, costs,
+                                state.labels, state.replacements + 1)  # fmt: skip
+    x, f, _ = greedy_select(state.x, state.f, candidates[: costs.shape[0]], costs)
+    return ModifiedBSOState(x, f, STARTING, state.candidates, state.candidate_costs,
+                            state.labels, state.replacements)  # fmt: skip
 
-    The slot-wise selection of the last ``ideas`` over ``(x, f)``, the k-means
-    step (from ``n_clusters`` distinct members drawn with the first
-    ``n_clusters`` entries of ``u``), then :func:`ideas_from_clusters`, whose
-    arguments these are.
-    """
-    s = KernelSettings(*packed)
-    x, f, _ = greedy_select(x, f, ideas, idea_costs)
-    labels, centre_index, sizes = cluster_population(
-        x, f, u[: s.n_clusters], kmeans_max_iter=s.kmeans_max_iter
-    )
-    return ideas_from_clusters(
-        x, f, labels, centre_index, sizes, u, normals, replace, candidates, candidate_costs,
-        iteration, packed,
-    )  # fmt: skip
+
+register_kernels(ModifiedBSOState, modified_bso_ask, modified_bso_tell)
 
 
 @njit(cache=True)
-def modified_bso_block(
-    address: int,
-    data: np.ndarray,
-    counts: np.ndarray,
-    best: np.ndarray,
-    x: np.ndarray,
-    f: np.ndarray,
-    ideas: np.ndarray,
-    idea_costs: np.ndarray,
-    uniforms: np.ndarray,
-    normals: np.ndarray,
-    nit: int,
-    first_iteration: int,
-    iteration_limit: int,
-    replacement: tuple,
-    packed: tuple,
-    history_nfev: np.ndarray,
-    history_fun: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
-    """Iterations ``nit + 1``, ... of a compiled solve, one per row of the random block.
-
-    Each is :meth:`ModifiedBSO.step` with the objective called through ``address``/``data``
-    (see :mod:`~formation_bench.optimizers.compiled`); the block stops early at the iteration
-    limit or when no evaluation is left. ``replacement`` is ``(chaos_replacement, p_replace,
-    n_replace, replacement_map)``. Returns ``(x, f, ideas, idea_costs, iterations done,
-    replacements)``; the history arrays get one entry per iteration done.
-    """
-    chaos_replacement, p_replace, n_replace, replacement_map = replacement
-    s = KernelSettings(*packed)
-    m = s.n_clusters
-    d = x.shape[1]
-    done = 0
-    replacements = 0
-    row = nit + 1 - first_iteration
-    while nit < iteration_limit and row < uniforms.shape[0] and remaining(counts) > 0:
-        nit += 1
-        u = uniforms[row]
-        replace = chaos_replacement and u[m] < p_replace and remaining(counts) >= n_replace
-        if replace:
-            candidates = chaotic_candidates(
-                replacement_map, u[m + 2 : m + 2 + d], n_replace, s.lower, s.upper
-            )
-            candidate_costs = evaluate(address, data, candidates, n_replace, counts, best)
-            replacements += 1
-        else:
-            candidates, candidate_costs = x, f
-        x, f, ideas = modified_bso_iteration(
-            x, f, ideas, idea_costs, u, normals[row], replace, candidates, candidate_costs,
-            nit, packed,
-        )  # fmt: skip
-        idea_costs = evaluate_prefix(address, data, ideas, counts, best)
-        history_nfev[done] = counts[NFEV]
-        history_fun[done] = best[0]
-        done += 1
-        row += 1
-    return x, f, ideas, idea_costs, done, replacements
+def modified_bso_iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def]
+    """:func:`~formation_bench.optimizers.ask_tell.iterate` with the modified BSO's kernels."""
+    return iterate(state, params, block, nit, rows)

@@ -45,87 +45,48 @@ population method. ``original-bso-warm``, not Shi's, draws a share of them aroun
 start (:class:`~formation_bench.optimizers.population.WarmStartInit`).
 
 The random numbers of one iteration are laid out as in
-:class:`~formation_bench.optimizers.modified_bso.ModifiedBSO` with all-centre weighting off,
-the random point taking the place of the chaotic seed ``cr(0)``: with
-``p_replace = 0`` and the same step settings the two produce identical runs,
-which the tests use to show that the ablation without both modifications is
+:class:`~formation_bench.optimizers.modified_bso.ModifiedBSO` with all-centre weighting off
+(:class:`~formation_bench.optimizers.bso_ops.BSODraws`), the random point taking the place of
+the chaotic seed ``cr(0)``: with ``p_replace = 0`` and the same step settings the two produce
+identical runs, which the tests use to show that the ablation without both modifications is
 Shi's idea generation.
+
+The iteration is written once, as the ask/tell kernels of
+:mod:`~formation_bench.optimizers.original_bso_kernels`, which both solve loops of
+:mod:`~formation_bench.optimizers.ask_tell` drive.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
-from formation_bench.optimizers.base import (
-    Bounds,
-    Budget,
-    EvaluationCounter,
-    OptimizeResult,
-    PopulationOptimizer,
+from formation_bench.optimizers.ask_tell import AskTellOptimizer, DrawPlan, Kernels
+from formation_bench.optimizers.base import Bounds, Budget
+from formation_bench.optimizers.original_bso_kernels import (
+    BSOState,
+    ShiConfig,
+    shi_ask,
+    shi_iterate,
+    shi_tell,
 )
-from formation_bench.optimizers.compiled import CompiledObjective
-from formation_bench.optimizers.original_bso_kernels import ShiConfig, shi_block, shi_ideas
-from formation_bench.optimizers.population import (
-    RandomAhead,
-    WarmStartInit,
-    compiled_initial_population,
-    evaluate_prefix,
-    greedy_select,
-    initial_population,
-    iteration_randoms,
-    no_randoms,
-    run_compiled_blocks,
-)
+from formation_bench.optimizers.population import WarmStartInit
 from formation_bench.optimizers.registry import register
-
-
-class BSOState(NamedTuple):
-    """Ideas, the last batch of new ideas, and bookkeeping (arrays are never modified in place).
-
-    Step 7 (the slot-wise selection) of an iteration is applied at the start
-    of the next one, in the same compiled call as its steps 2-6, so that an
-    iteration costs one kernel call besides the objective; :meth:`population`
-    applies the pending selection. A NamedTuple rather than a frozen
-    dataclass: it is built once per iteration, and its constructor costs a
-    third as much.
-    """
-
-    x: np.ndarray
-    """Ideas before the selection of ``new_ideas``, shape (N, D)."""
-    f: np.ndarray
-    """Their costs (+inf for ideas not evaluated for lack of budget)."""
-    new_ideas: np.ndarray
-    """The last iteration's new ideas, each competing for its slot, (N, D); 0 rows at first."""
-    new_costs: np.ndarray
-    """Their costs (+inf for ideas not evaluated for lack of budget)."""
-    settings: tuple
-    """The packed :class:`~formation_bench.optimizers.original_bso_kernels.ShiSettings` of the
-    solve (T_max, bounds, step scale, configuration)."""
-    t_max: int
-    """Planned iterations (also in ``settings``; read here by the Python side)."""
-    randoms: RandomAhead
-    """Random numbers drawn ahead for the next iterations."""
-    replacements: int = 0
-    """Random-point centre replacements so far."""
-
-    def population(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(x, f)`` after the pending slot-wise selection of ``new_ideas``."""
-        x, f, _ = greedy_select(self.x, self.f, self.new_ideas, self.new_costs)
-        return x, f
 
 
 # WarmStartInit leads the bases because dataclass fields follow the reversed MRO: its settings
 # then come after the method's own, whose positions and listing order stay as they were
 @dataclass(frozen=True)
-class OriginalBSO(WarmStartInit, ShiConfig, PopulationOptimizer[BSOState]):
+class OriginalBSO(WarmStartInit, ShiConfig, AskTellOptimizer):
     """Shi's (2011) BSO: probabilities and slope as published; N and T_max for ~1300 evaluations.
 
     The settings are those of :class:`~formation_bench.optimizers.original_bso_kernels.ShiConfig`
     and, for the initial ideas, :class:`~formation_bench.optimizers.population.WarmStartInit`.
     """
+
+    kernels = Kernels(shi_ask, shi_tell, shi_iterate)
 
     @property
     def default_budget(self) -> Budget:
@@ -134,86 +95,19 @@ class OriginalBSO(WarmStartInit, ShiConfig, PopulationOptimizer[BSOState]):
     def evaluations_per_step(self) -> int:
         return self.population_size
 
+    def params(self, bounds: Bounds, t_max: int) -> tuple:
+        return self.shi_settings(bounds, t_max)
+
+    def start(
+        self, points: np.ndarray, costs: np.ndarray, rng: np.random.Generator, params: tuple
+    ) -> BSOState:
+        return BSOState(points, costs, 0)
+
+    def draw_plan(self, n: int, d: int) -> DrawPlan:
+        return DrawPlan(self.uniforms_per_step(n, d), (n, d))
+
     def result_info(self, state: BSOState) -> dict[str, Any]:
         return {"random_replacements": state.replacements}
-
-    def init(
-        self,
-        counter: EvaluationCounter,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        x0: np.ndarray | None,
-        max_iterations: int,
-    ) -> BSOState:
-        """N ideas (row 0 = ``x0`` if given, a share around it if configured, the rest uniform),
-        evaluated in one batch within the budget."""
-        x, f = initial_population(counter, bounds, rng, self.population_size, x0, self)
-        n, d = x.shape
-        return BSOState(
-            x=x,
-            f=f,
-            new_ideas=np.empty((0, d)),
-            new_costs=np.empty(0),
-            settings=self.shi_settings(bounds, max_iterations),
-            t_max=int(max_iterations),
-            randoms=no_randoms(self.uniforms_per_step(n, d), (n, d)),
-        )
-
-    def step(
-        self,
-        state: BSOState,
-        counter: EvaluationCounter,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        iteration: int,
-    ) -> BSOState:
-        settings = state.settings
-        randoms, u, normals = iteration_randoms(state.randoms, rng, iteration, state.t_max)
-        x, f, ideas = shi_ideas(
-            state.x, state.f, state.new_ideas, state.new_costs, u, normals, iteration, settings
-        )
-        costs = evaluate_prefix(counter, ideas)
-        replaced = bool(u[self.n_clusters] < self.p_replace)
-        return BSOState(
-            x, f, ideas, costs, settings, state.t_max, randoms, state.replacements + replaced
-        )
-
-    def has_compiled_loop(self) -> bool:
-        return True
-
-    def minimize_compiled(
-        self,
-        objective: CompiledObjective,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        budget: Budget,
-        x0: np.ndarray | None,
-    ) -> OptimizeResult:
-        t_max = self.planned_iterations(budget)
-        x, f, start = compiled_initial_population(
-            objective, bounds, rng, self.population_size, x0, budget.max_evaluations, self
-        )
-        n, d = x.shape
-        settings = self.shi_settings(bounds, t_max)
-        carry = [x, f, np.empty((0, d)), np.empty(0), 0]
-
-        def run_block(
-            nit: int, limit: int, randoms: RandomAhead, history_nfev: np.ndarray,
-            history_fun: np.ndarray,
-        ) -> int:  # fmt: skip
-            x, f, ideas, idea_costs, replacements = carry
-            x, f, ideas, idea_costs, done, replaced = shi_block(
-                objective.address, objective.data, start.counts, start.best, x, f, ideas,
-                idea_costs, randoms.uniforms, randoms.normals, nit, randoms.first_iteration,
-                limit, settings, history_nfev, history_fun,
-            )  # fmt: skip
-            carry[:] = [x, f, ideas, idea_costs, replacements + replaced]
-            return done
-
-        return run_compiled_blocks(
-            run_block, start, rng, budget, t_max, self.uniforms_per_step(n, d), (n, d),
-            lambda: {"random_replacements": carry[4]},
-        )  # fmt: skip
 
 
 WARM_START_SHARE = 0.9

@@ -1,11 +1,6 @@
-"""Shi's BSO iteration as compiled kernels (driven by :mod:`.original_bso`).
-
-One iteration of :class:`~formation_bench.optimizers.original_bso.OriginalBSO` is one call of
-:func:`shi_ideas` besides the objective call: at a population of 30 a
-Python-level call into a kernel costs about as much as its arithmetic, so the
-selection of the previous ideas, the k-means step, the random-point centre
-replacement and the new ideas are fused. The chaotic-local-search BSO
-(:mod:`formation_bench.optimizers.cls_bso`) calls :func:`shi_step` from its own kernel. Like
+"""Shi's BSO: its settings, its steps 2-6 (:func:`shi_step`, shared with the chaotic local
+search BSO of :mod:`formation_bench.optimizers.cls_bso`) and the ask/tell kernels of
+:class:`~formation_bench.optimizers.original_bso.OriginalBSO`. Like
 :mod:`formation_bench.optimizers.bso_ops`, the kernels are pure: random numbers come in as
 arrays and inputs are never modified.
 """
@@ -13,23 +8,29 @@ arrays and inputs are never modified.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.optimizers.ask_tell import iterate, register_kernels
 from formation_bench.optimizers.base import Bounds
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
+    BSODraws,
+    Clusters,
+    bso_draws,
     cluster_population,
-    generate_ideas,
     logsig_factor,
+    move_ideas,
     nonempty,
     pick_index,
+    shi_select,
+    uniforms_per_iteration,
 )
 from formation_bench.optimizers.clustering import DEFAULT_MAX_ITER
-from formation_bench.optimizers.compiled import NFEV, evaluate_prefix, remaining
 from formation_bench.optimizers.population import greedy_select, step_scale
 
 PER_SOLVE = ("t_max", "scale", "lower", "upper")
@@ -38,7 +39,9 @@ PER_SOLVE = ("t_max", "scale", "lower", "upper")
 
 @dataclass(frozen=True)
 class ShiConfig(Validated):
-    """The settings of Shi's BSO, declared once for every optimiser built on :func:`shi_step`.
+    """The settings of Shi's BSO, declared once for every optimiser built on :func:`shi_step`
+    (:class:`~formation_bench.optimizers.original_bso.OriginalBSO`,
+    :class:`~formation_bench.optimizers.cls_bso.ChaoticLocalSearchBSO`).
 
     Declared next to the kernels that read them: the fields marked
     ``kernel=True`` make :class:`ShiSettings`, which the kernels rebuild and
@@ -97,9 +100,11 @@ class ShiConfig(Validated):
         )
 
     def uniforms_per_step(self, n: int, d: int) -> int:
-        """Length of one iteration's uniforms (layout: :func:`shi_step`)."""
+        """Length of one iteration's uniforms (:class:`~formation_bench.optimizers.bso_ops.
+        BSODraws`, the sources of width :data:`~formation_bench.optimizers.bso_ops.
+        SHI_UNIFORMS_PER_IDEA`)."""
         resample = self.bound_handling is BoundHandling.RESAMPLE
-        return uniforms_per_iteration(n, d, self.n_clusters) + (n * d if resample else 0)
+        return uniforms_per_iteration(n, d, self.n_clusters, SHI_UNIFORMS_PER_IDEA, resample)
 
 
 ShiSettings = kernel_settings_class(
@@ -134,121 +139,62 @@ def replace_centre(
     return sources, centres
 
 
-def uniforms_per_iteration(n: int, d: int, n_clusters: int) -> int:
-    """Length of the uniforms :func:`shi_step` reads, without the resample values."""
-    return n_clusters + 2 + d + n * SHI_UNIFORMS_PER_IDEA + n
-
-
 @njit(cache=True)
 def shi_step(
-    x: np.ndarray, f: np.ndarray, u: np.ndarray, normals: np.ndarray, iteration: int, s: ShiSettings
+    x: np.ndarray, f: np.ndarray, draws: BSODraws, iteration: int, s: ShiSettings
 ) -> np.ndarray:
     """Steps 2-6 of Shi's BSO on the ideas ``(x, f)``: the N new ideas.
 
-    The step factor is that of ``iteration`` out of ``s.t_max``. ``u`` holds,
-    in this order: the k-means seeds (m), the p_5a draw, the replaced
-    cluster, the random point (D), the idea-selection uniforms (N x 7, see
-    :data:`~formation_bench.optimizers.bso_ops.SHI_UNIFORMS_PER_IDEA`), ``rand`` (N) and, for
-    RESAMPLE bound handling only, N x D resample values. ``normals`` is N x D.
+    k-means from ``draws.kmeans``; with ``draws.replace_draw < p_replace`` the random point
+    ``draws.point`` (scaled to the box) replaces a centre (:func:`replace_centre`); the ideas
+    are Shi's selection from ``draws.sources`` moved by the step of ``iteration`` out of
+    ``s.t_max``.
     """
-    n, d = x.shape
-    m = s.n_clusters
-    point_at = m + 2
-    ideas_at = point_at + d
-    rand_at = ideas_at + n * SHI_UNIFORMS_PER_IDEA
-    end = rand_at + n
-    labels, centres, sizes = cluster_population(x, f, u[:m], kmeans_max_iter=s.kmeans_max_iter)
-    sources = x
-    if u[m] < s.p_replace:
-        point = s.lower + u[point_at:ideas_at] * (s.upper - s.lower)
-        sources, centres = replace_centre(x, centres, u[m + 1], point)
-    resample_uniforms = u[end:].reshape(n, d) if u.shape[0] > end else normals
-    return generate_ideas(
-        sources,
-        labels,
-        centres,
-        sizes,
-        u[ideas_at:rand_at].reshape(n, SHI_UNIFORMS_PER_IDEA),
-        # Shi's selection: the all-centre weighting and its settings are not used
-        all_centre_weighting=False,
-        weight_map=0,
-        n_weight_iterations=0,
-        normalise_weights=False,
-        p_one_cluster=s.p_one_cluster,
-        p_one_centre=s.p_one_centre,
+    clusters = cluster_population(x, f, draws.kmeans, kmeans_max_iter=s.kmeans_max_iter)
+    sources, centres = x, clusters.centre_index
+    if draws.replace_draw < s.p_replace:
+        point = s.lower + draws.point * (s.upper - s.lower)
+        sources, centres = replace_centre(x, centres, draws.centre_draw, point)
+    auxiliary = shi_select(
+        sources, Clusters(clusters.labels, centres, clusters.sizes), draws.sources,
+        p_one_cluster=s.p_one_cluster, p_one_centre=s.p_one_centre,
         p_two_centres=s.p_two_centres,
-        factor=logsig_factor(iteration, t_max=s.t_max, slope=s.slope),
-        rand=u[rand_at:end],
-        normals=normals,
-        scale=s.scale,
-        lower=s.lower,
-        upper=s.upper,
-        bound_handling=s.bound_handling,
-        resample_uniforms=resample_uniforms,
-    )
+    )  # fmt: skip
+    return move_ideas(auxiliary, logsig_factor(iteration, t_max=s.t_max, slope=s.slope), draws, s)
+
+
+class BSOState(NamedTuple):
+    """Shi's ideas between iterations (kernels return a new state, never modify one)."""
+
+    x: np.ndarray
+    """Ideas, shape (N, D)."""
+    f: np.ndarray
+    """Their costs (+inf for ideas not evaluated for lack of budget)."""
+    replacements: int
+    """Random-point centre replacements so far."""
+
+
+@njit(cache=True, inline="always")
+def shi_ask(state, params, uniforms, normals, iteration, remaining):  # type: ignore[no-untyped-def]
+    """Steps 2-6 (:func:`shi_step`): the N new ideas."""
+    s = ShiSettings(*params)
+    draws = bso_draws(uniforms, normals, n_clusters=s.n_clusters, width=SHI_UNIFORMS_PER_IDEA)
+    ideas = shi_step(state.x, state.f, draws, iteration, s)
+    replaced = state.replacements + (draws.replace_draw < s.p_replace)
+    return BSOState(state.x, state.f, replaced), ideas, True
+
+
+@njit(cache=True, inline="always")
+def shi_tell(state, params, candidates, costs, iteration):  # type: ignore[no-untyped-def]
+    """Step 7: each evaluated idea replaces the idea of its slot when strictly better."""
+    x, f, _ = greedy_select(state.x, state.f, candidates[: costs.shape[0]], costs)
+    return BSOState(x, f, state.replacements)
+
+
+register_kernels(BSOState, shi_ask, shi_tell)
 
 
 @njit(cache=True)
-def shi_ideas(
-    x: np.ndarray,
-    f: np.ndarray,
-    new_ideas: np.ndarray,
-    new_costs: np.ndarray,
-    u: np.ndarray,
-    normals: np.ndarray,
-    iteration: int,
-    packed: tuple,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Step 7 of the last iteration, then :func:`shi_step`, in one call: ``(x, f, ideas)``.
-
-    ``(x, f)`` are the ideas after the slot-wise selection of ``new_ideas``
-    (costs ``new_costs``), ``ideas`` the N new ones made from them;
-    ``packed`` is :meth:`ShiConfig.shi_settings`. Fused so that an iteration
-    costs one kernel call.
-    """
-    x, f, _ = greedy_select(x, f, new_ideas, new_costs)
-    return x, f, shi_step(x, f, u, normals, iteration, ShiSettings(*packed))
-
-
-@njit(cache=True)
-def shi_block(
-    address: int,
-    data: np.ndarray,
-    counts: np.ndarray,
-    best: np.ndarray,
-    x: np.ndarray,
-    f: np.ndarray,
-    ideas: np.ndarray,
-    idea_costs: np.ndarray,
-    uniforms: np.ndarray,
-    normals: np.ndarray,
-    nit: int,
-    first_iteration: int,
-    iteration_limit: int,
-    packed: tuple,
-    history_nfev: np.ndarray,
-    history_fun: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
-    """Iterations ``nit + 1``, ... of a compiled solve, one per row of the random block.
-
-    Each is :meth:`OriginalBSO.step` with the objective called through ``address``/``data``
-    (see :mod:`~formation_bench.optimizers.compiled`); the block stops early at the iteration
-    limit or when no evaluation is left. Returns ``(x, f, ideas, idea_costs, iterations done,
-    random replacements)``; the history arrays get one entry per iteration done.
-    """
-    s = ShiSettings(*packed)
-    done = 0
-    replacements = 0
-    row = nit + 1 - first_iteration
-    while nit < iteration_limit and row < uniforms.shape[0] and remaining(counts) > 0:
-        nit += 1
-        u = uniforms[row]
-        x, f, ideas = shi_ideas(x, f, ideas, idea_costs, u, normals[row], nit, packed)
-        idea_costs = evaluate_prefix(address, data, ideas, counts, best)
-        if u[s.n_clusters] < s.p_replace:
-            replacements += 1
-        history_nfev[done] = counts[NFEV]
-        history_fun[done] = best[0]
-        done += 1
-        row += 1
-    return x, f, ideas, idea_costs, done, replacements
+def shi_iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def]
+    """:func:`~formation_bench.optimizers.ask_tell.iterate` with Shi's kernels."""
+    return iterate(state, params, block, nit, rows)

@@ -9,7 +9,6 @@ one of them evaluates a batch of new points that the budget may cut short.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from time import perf_counter
 from typing import NamedTuple
@@ -18,15 +17,13 @@ import numpy as np
 from numba import njit
 
 from formation_bench.fields import setting
-from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, OptimizeResult
+from formation_bench.optimizers.base import Bounds, EvaluationCounter, OptimizeResult
 from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.compiled import (
     HAS_BEST,
     NFEV,
-    UNLIMITED,
     CompiledObjective,
     new_tally,
-    remaining,
 )
 from formation_bench.optimizers.compiled import evaluate_prefix as compiled_evaluate_prefix
 
@@ -153,22 +150,6 @@ def greedy_select(
     return x, f, improved
 
 
-def evaluate_and_select(
-    counter: EvaluationCounter, x: np.ndarray, f: np.ndarray, candidates: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Slot-wise greedy selection of ``candidates`` over ``(x, f)``, within the budget.
-
-    Only the first ``counter.remaining`` candidates are evaluated (and can win
-    their slot); returns new arrays, the inputs are untouched.
-    """
-    allowed = min(candidates.shape[0], counter.remaining)
-    if allowed <= 0:
-        return x, f
-    evaluated = candidates[:allowed]
-    new_x, new_f, _ = greedy_select(x, f, evaluated, counter(evaluated))
-    return new_x, new_f
-
-
 ROWS_AHEAD = 64
 """Most iterations whose random numbers one Generator call draws."""
 
@@ -234,14 +215,8 @@ def progress(iteration: int, t_max: int) -> float:
     return min(max((iteration - 1) / (t_max - 1), 0.0), 1.0)
 
 
-def compiled_iteration_limit(budget: Budget) -> int:
-    """The budget's iteration limit as a compiled block reads it
-    (:data:`~formation_bench.optimizers.compiled.UNLIMITED` when it sets none)."""
-    return budget.max_iterations if budget.max_iterations is not None else UNLIMITED
-
-
 class CompiledStart(NamedTuple):
-    """A compiled solve after its initial population: what :func:`run_compiled_blocks` needs."""
+    """A compiled solve after its initial population: its tally and when it began."""
 
     counts: np.ndarray
     """The tally's counts (see :func:`~formation_bench.optimizers.compiled.new_tally`)."""
@@ -269,61 +244,6 @@ def compiled_initial_population(
     return points, costs, start
 
 
-BlockRunner = Callable[[int, int, RandomAhead, np.ndarray, np.ndarray], int]
-"""``(nit, limit, randoms, history_nfev, history_fun) -> iterations done``: runs iterations
-``nit + 1``, ... up to ``limit`` with the block's random rows from iteration ``nit + 1`` on,
-while the budget allows, writing one history entry each."""
-
-
-def run_compiled_blocks(
-    run_block: BlockRunner,
-    start: CompiledStart,
-    rng: np.random.Generator,
-    budget: Budget,
-    t_max: int,
-    n_uniforms: int,
-    normal_shape: tuple[int, ...],
-    info: Callable[[], dict],
-) -> OptimizeResult:
-    """The loop of :meth:`PopulationOptimizer.minimize` for a compiled solve, block by block.
-
-    Random numbers are drawn exactly as :func:`iteration_randoms` draws them (a block when an
-    iteration needs one, of the same rows), so the compiled solve and the Python one take the
-    same numbers, leave ``rng`` in the same state and give the same result.
-    """
-    counts, best = start.counts, start.best
-    history_nfev = [int(counts[NFEV])]
-    history_fun = [float(best[0])]
-    iteration_limit = compiled_iteration_limit(budget)
-    deadline_s = budget.deadline_s
-    message = "iteration budget reached"
-    nit = 0
-    randoms = no_randoms(n_uniforms, normal_shape)
-    while nit < iteration_limit:
-        if remaining(counts) <= 0:
-            message = "evaluation budget reached"
-            break
-        # a deadline is checked before every iteration, as the Python loop does: one
-        # iteration per compiled call then
-        if deadline_s is not None and perf_counter() - start.started >= deadline_s:
-            message = "deadline reached"
-            break
-        iteration = nit + 1
-        randoms, _, _ = iteration_randoms(randoms, rng, iteration, t_max)
-        left = randoms.first_iteration + randoms.uniforms.shape[0] - iteration
-        block_nfev = np.empty(left, dtype=np.int64)
-        block_fun = np.empty(left)
-        limit = iteration if deadline_s is not None else iteration_limit
-        done = run_block(nit, limit, randoms, block_nfev, block_fun)
-        history_nfev.extend(block_nfev[:done].tolist())
-        history_fun.extend(block_fun[:done].tolist())
-        nit += done
-    else:
-        if remaining(counts) <= 0:
-            message = "evaluation budget reached"
-    return compiled_result(start, nit, message, history_nfev, history_fun, info())
-
-
 def compiled_result(
     tally: CompiledStart,
     nit: int,
@@ -349,49 +269,3 @@ def compiled_result(
         history_fun=np.asarray(history_fun),
         info={"objective_time_s": math.nan, **info},
     )
-
-
-DrawingBlockRunner = Callable[[int, int, np.ndarray, np.ndarray, np.ndarray], int]
-"""``(nit, rows, uniforms, history_nfev, history_fun) -> iterations done``: runs the ``rows``
-iterations ``nit + 1``, ... on ``uniforms``, the numbers their own draws would give one after the
-other, writing one history entry each."""
-
-
-def run_compiled_draws(
-    run_block: DrawingBlockRunner,
-    start: CompiledStart,
-    rng: np.random.Generator,
-    budget: Budget,
-    t_max: int,
-    batch: int,
-    uniforms_per_iteration: Callable[[int], int],
-    info: Callable[[], dict],
-) -> OptimizeResult:
-    """:func:`run_compiled_blocks` for an optimiser whose iterations draw their own uniforms.
-
-    It fits a Python step that makes one ``rng.random`` call of ``uniforms_per_iteration(m)``
-    numbers and evaluates ``m = min(batch, evaluations left)`` rows. The iterations such a loop
-    runs are then known before they start (each one takes ``min(batch, left)`` of the ``left``
-    evaluations, so ``ceil(left / batch)`` of them exhaust the budget), and so are the sizes of
-    their draws. A Generator fills an array one number after the other from one stream, so one
-    ``rng.random`` call of their total gives the numbers of the separate calls, in order, and
-    leaves ``rng`` where they leave it; an iteration that is not run draws nothing. The blocks
-    are those of :func:`run_compiled_blocks`, told to draw no numbers of its own (an empty draw
-    leaves a Generator unchanged), so the loop, its limits and its message are that one's.
-    """
-    counts = start.counts
-
-    def run_drawn_block(
-        nit: int, limit: int, randoms: RandomAhead, history_nfev: np.ndarray,
-        history_fun: np.ndarray,
-    ) -> int:  # fmt: skip
-        left = int(remaining(counts))
-        rows_left = randoms.first_iteration + randoms.uniforms.shape[0] - (nit + 1)
-        rows = min(rows_left, limit - nit, -(-left // batch))
-        total = sum(uniforms_per_iteration(min(batch, left - j * batch)) for j in range(rows))
-        done = run_block(nit, rows, rng.random(total), history_nfev, history_fun)
-        if done != rows:
-            raise RuntimeError(f"a compiled block ran {done} of its {rows} planned iterations")
-        return done
-
-    return run_compiled_blocks(run_drawn_block, start, rng, budget, t_max, 0, (0,), info)

@@ -10,6 +10,7 @@ from typing import Any
 
 from formation_bench.mpc.scenario import Scenario
 from formation_bench.optimizers import Budget, Optimizer
+from formation_bench.pipeline.spec import deadline_ms_of_s
 
 MAX_UAV_INSTANTS = 1_000_000
 """Instants times UAVs: each is a solve; a million of them takes hours on a laptop."""
@@ -56,10 +57,10 @@ class LimitError(ValueError):
 
 def check_run(scenario: Scenario, optimizer: Optimizer, budget: Budget | None) -> None:
     """Refuse a run that cannot produce its metrics or would not finish; the message says why."""
-    end = scenario.n_steps * scenario.period_s
-    if scenario.settle_time_s > end + 1e-9:
+    end = scenario.timing.n_steps * scenario.timing.period_s
+    if scenario.evaluation.settle_time_s > end + 1e-9:
         raise LimitError(
-            f"settle_time_s={scenario.settle_time_s:g} is after the end of the run "
+            f"settle_time_s={scenario.evaluation.settle_time_s:g} is after the end of the run "
             f"({end:g} s = n_steps * period_s): no instant would be measured; lower "
             "settle_time_s or raise n_steps"
         )
@@ -68,15 +69,15 @@ def check_run(scenario: Scenario, optimizer: Optimizer, budget: Budget | None) -
             f"initial_states: {scenario.n_uav} UAVs is more than {MAX_UAVS} (each UAV's cost "
             "sums over all others, so the work grows with the square)"
         )
-    if scenario.n_steps * scenario.n_uav > MAX_UAV_INSTANTS:
+    if scenario.timing.n_steps * scenario.n_uav > MAX_UAV_INSTANTS:
         raise LimitError(
-            f"n_steps={scenario.n_steps} with {scenario.n_uav} UAVs is more than "
+            f"n_steps={scenario.timing.n_steps} with {scenario.n_uav} UAVs is more than "
             f"{MAX_UAV_INSTANTS:,} solves (hours of computing); split the run"
         )
-    if scenario.horizon_steps > MAX_HORIZON_STEPS:
+    if scenario.timing.horizon_steps > MAX_HORIZON_STEPS:
         raise LimitError(
-            f"horizon_steps={scenario.horizon_steps} is more than {MAX_HORIZON_STEPS} (every "
-            "cost evaluation integrates the whole horizon)"
+            f"horizon_steps={scenario.timing.horizon_steps} is more than {MAX_HORIZON_STEPS} "
+            "(every cost evaluation integrates the whole horizon)"
         )
     check_optimizer(optimizer, budget)
 
@@ -109,8 +110,9 @@ def _check_budget(what: str, budget: Budget | None) -> None:
             )
     if budget.deadline_s is not None and budget.deadline_s > MAX_DEADLINE_S:
         raise LimitError(
-            f"{what}: deadline_ms={1000 * budget.deadline_s:g} is more than "
-            f"{1000 * MAX_DEADLINE_S:,.0f} per solve (a closed loop makes hundreds of solves)"
+            f"{what}: deadline_ms={deadline_ms_of_s(budget.deadline_s):g} is more than "
+            f"{deadline_ms_of_s(MAX_DEADLINE_S):,.0f} per solve (a closed loop makes hundreds "
+            "of solves)"
         )
 
 

@@ -1,7 +1,8 @@
 """Writing and reading a run's outputs: ``metrics.json`` and the Parquet trace.
 
 The trace is stored long: one row per update instant and UAV, so that pandas
-(or DuckDB) can group and plot it without knowing the array layout. It is built
+(or DuckDB) can group and plot it without knowing the array layout; its columns are
+declared in :mod:`~formation_bench.pipeline.trace_columns`. It is built
 and written with pyarrow alone: pandas takes longer to import than a warm run of
 the paper scenario spends outside its solves, and only the figures need it.
 """
@@ -17,7 +18,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from formation_bench.mpc.loop import Trace
-from formation_bench.mpc.trigger import TRIGGER_CONDITIONS
+from formation_bench.pipeline.trace_columns import (
+    TRACE_COLUMN_NAMES,
+    TRACE_COLUMNS,
+    Kind,
+    RunLabels,
+    Span,
+    check_schema,
+)
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -67,8 +75,9 @@ def seed_column(seed: int, n_rows: int) -> pa.Array:
     return text_column(str(seed), n_rows)
 
 
-def trace_frame(trace: Trace) -> pa.Table:
-    """The trace as a long table: one row per instant (0..T) and UAV.
+def trace_table(trace: Trace, labels: RunLabels) -> pa.Table:
+    """The trace as a long table: one row per instant (0..T) and UAV, a column per
+    :data:`~formation_bench.pipeline.trace_columns.TRACE_COLUMNS` entry, in its order.
 
     The last instant holds the final state only: its control, solve, network and wind
     columns are NaN / 0 / False.
@@ -76,61 +85,19 @@ def trace_frame(trace: Trace) -> pa.Table:
     import pyarrow as pa
 
     n_instants, n_uav = trace.states.shape[:2]
-    n_steps = n_instants - 1
-    step = np.repeat(np.arange(n_instants), n_uav)
-    uav = np.tile(np.arange(1, n_uav + 1), n_instants)
-
-    def pad(values: np.ndarray, fill: Any) -> np.ndarray:
-        extra = np.full((1, *values.shape[1:]), fill, dtype=np.result_type(values, type(fill)))
-        return np.concatenate([values, extra]).reshape(n_instants * n_uav, *values.shape[2:])
-
-    states = trace.states.reshape(-1, 4)
-    controls = pad(trace.controls, np.nan)
-    reasons = pad(trace.reasons, False)
-    desired = (trace.reference[:, None, :] + trace.desired_offsets).reshape(-1, 2)
-    wind = pad(trace.wind, np.nan)
     n_rows = n_instants * n_uav
-    columns = {
-        "optimizer": text_column(trace.optimizer, n_rows),
-        "scenario": text_column(trace.scenario.name, n_rows),
-        "trigger": np.full(n_rows, trace.trigger, dtype=bool),
-        "seed": seed_column(trace.seed, n_rows),
-        "step": step,
-        "time_s": np.repeat(trace.times, n_uav),
-        "uav": uav,
-        "x_m": states[:, 0],
-        "y_m": states[:, 1],
-        "heading_rad": states[:, 2],
-        "speed_m_s": states[:, 3],
-        "accel_m_s2": controls[:, 0],
-        "turn_rate_rad_s": controls[:, 1],
-        "solved": pad(trace.solved, False).astype(bool),
-        **{
-            f"trigger_{name}": reasons[:, k].astype(bool)
-            for k, name in enumerate(TRIGGER_CONDITIONS)
-        },
-        "solve_time_s": pad(trace.solve_time_s, np.nan),
-        "nfev": pad(trace.nfev, 0).astype(np.int64),
-        "solve_cost": pad(trace.solve_cost, np.nan),
-        "solve_failed": pad(trace.solve_failed, False).astype(bool),
-        "plan_at_bound": pad(trace.plan_at_bound, False).astype(bool),
-        "ref_x_m": np.repeat(trace.reference[:, 0], n_uav),
-        "ref_y_m": np.repeat(trace.reference[:, 1], n_uav),
-        "ref_heading_rad": np.repeat(trace.reference_heading, n_uav),
-        "desired_x_m": desired[:, 0],
-        "desired_y_m": desired[:, 1],
-        "neighbours": pad(trace.neighbours.sum(axis=2), 0).astype(np.int64),
-        "plans_lost": pad(trace.plans_lost, 0).astype(np.int64),
-        "plans_late": pad(trace.plans_late, 0).astype(np.int64),
-        "wind_x_m_s": wind[:, 0],
-        "wind_y_m_s": wind[:, 1],
-    }
-    table = pa.Table.from_arrays(
-        [c if isinstance(c, pa.Array) else arrow_column(c) for c in columns.values()],
-        names=list(columns),
-    )
-    assert table.num_rows == (n_steps + 1) * n_uav
-    return table
+    arrays = []
+    for column in TRACE_COLUMNS:
+        values = column.values(trace, labels)
+        if column.kind is Kind.TEXT:
+            arrays.append(text_column(values, n_rows))
+        elif column.kind is Kind.SEED:
+            arrays.append(seed_column(values, n_rows))
+        elif column.span is Span.RUN:
+            arrays.append(arrow_column(np.full(n_rows, values, dtype=column.kind.dtype)))
+        else:
+            arrays.append(arrow_column(values))
+    return pa.Table.from_arrays(arrays, names=list(TRACE_COLUMN_NAMES))
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -175,7 +142,10 @@ def write_trace(path: Path, table: pa.Table) -> None:
 
 
 def read_trace(path: Path) -> pd.DataFrame:
-    """Read a trace written by :func:`write_trace`, every page checked against its checksum."""
+    """Read a trace written by :func:`write_trace`, every page checked against its checksum
+    and its columns against the declared ones (:func:`~.trace_columns.check_schema`)."""
     import pyarrow.parquet as pq
 
-    return pq.read_table(path, page_checksum_verification=True).to_pandas()
+    table = pq.read_table(path, page_checksum_verification=True)
+    check_schema(table.schema)
+    return table.to_pandas()

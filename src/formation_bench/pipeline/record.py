@@ -7,26 +7,54 @@ in ``metrics.json`` (:meth:`RunRecord.to_json`), a sweep as one Parquet row per 
 (:meth:`RunRecord.row`). The columns are declared here and in
 :class:`~formation_bench.mpc.metrics.Metrics`, once: :func:`is_metric_column` and
 :func:`is_timing_column` read those declarations, so no other module keeps a list of them.
+
+A record describes itself: besides the registered names and overrides it holds every setting
+of the resolved scenario and optimiser (``scenario_config``, ``optimizer_config``), so
+:func:`stored_scenario` and :func:`stored_optimizer` rebuild what ran without today's
+registry or defaults. A row stored before those columns existed is rebuilt from today's
+registry only when that reproduces its ``config_hash`` exactly.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import socket
 import typing
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from types import NoneType
 from typing import Any
 
 from formation_bench.mpc.metrics import MetricInfo, Metrics, Per, metric_infos, metric_of
-from formation_bench.pipeline.spec import RunSpec
+from formation_bench.mpc.scenario import Scenario, get_scenario
+from formation_bench.optimizers import Budget, Optimizer, get_optimizer
+from formation_bench.pipeline.spec import (
+    RunSpec,
+    budget_deadline_ms,
+    budget_limits,
+    canonical_json,
+    config_of,
+    deadline_s_of_ms,
+    from_config,
+    from_json_value,
+    resolved_config_hash,
+    solve_budget,
+)
 
 RECORD_FORMAT = 4
-"""Bumped when the columns change; a stored run of another format is redone. 4: the CPU model
-and the casadi, osqp, cvxpy and ioh versions."""
+"""What the record's columns mean, as a number. Bumped only when a column changes meaning: a
+stored run of another meaning is redone. A column added without changing the meaning of the
+others does not bump it: a row stored before the column existed reads it as empty (missing).
+4 added columns only (the CPU model; the casadi, osqp, cvxpy and ioh versions) to 3, whose
+errors are taken from each run's own settling time."""
+SAME_MEANING_FORMATS = frozenset({3, RECORD_FORMAT})
+"""Record formats whose columns mean what those of :data:`RECORD_FORMAT` mean (a row of one
+lacks only columns added since): a stored run of one of them is kept, not redone."""
+JSON_COLUMNS = ("optimizer_overrides", "scenario_overrides", "scenario_config", "optimizer_config")
+"""Columns holding canonical JSON text (objects in a ``metrics.json`` record)."""
 
 
 def column(doc: str, *, timing: bool = False) -> Any:
@@ -38,7 +66,10 @@ def column(doc: str, *, timing: bool = False) -> Any:
 class RunDescription:
     """The columns that say which run a record is (from its :class:`RunSpec`)."""
 
-    record_format: int = column("layout version of the record's columns")
+    record_format: int = column(
+        "what the record's columns mean, as a number (changes only when a column changes "
+        "meaning, not when one is added)"
+    )
     run_key: str = column("24 hex digits of the SHA-256 of the run's identity")
     suite: str | None = column("suite the run came from; empty for a run of its own")
     optimizer: str = column("the optimiser configuration's label")
@@ -57,12 +88,22 @@ class RunDescription:
     seed: int = column("the run's seed as the user gave it (0, 1, ... in a suite)")
     seed_entropy: str = column("entropy of the run's SeedSequence (decimal; up to 128 bits)")
     config_hash: str = column("SHA-256 of the fully resolved optimiser, scenario and budget")
+    scenario_config: str | None = column(
+        "every setting of the resolved scenario, under its registered name (canonical JSON, "
+        "groups of settings nested); empty in a row stored before it was recorded"
+    )
+    optimizer_config: str | None = column(
+        "every setting of the resolved optimiser (canonical JSON); empty in a row stored "
+        "before it was recorded"
+    )
     command: str = column("the formation-bench run command that repeats the run exactly")
     steps: int = column("update instants simulated (n_steps)")
     settle_time_s: float = column("errors are taken from this time on, s")
 
     @classmethod
     def of(cls, spec: RunSpec, steps: int, settle_time_s: float) -> RunDescription:
+        scenario, optimizer = spec.configured()
+        max_evaluations, max_iterations = budget_limits(spec.budget)
         return cls(
             record_format=RECORD_FORMAT,
             run_key=spec.key,
@@ -75,12 +116,14 @@ class RunDescription:
             scenario_overrides=spec.scenario_overrides,
             trigger=spec.trigger,
             budget=spec.budget_label,
-            budget_max_evaluations=spec.budget_max_evaluations,
-            budget_max_iterations=spec.budget_max_iterations,
-            budget_deadline_ms=spec.budget_deadline_ms,
+            budget_max_evaluations=max_evaluations,
+            budget_max_iterations=max_iterations,
+            budget_deadline_ms=budget_deadline_ms(spec.budget),
             seed=spec.seed,
             seed_entropy=str(spec.entropy),
             config_hash=spec.config_hash,
+            scenario_config=canonical_json(config_of(scenario)),
+            optimizer_config=canonical_json(config_of(optimizer)),
             command=spec.run_command(out=f"repeat-{spec.key}"),
             steps=steps,
             settle_time_s=settle_time_s,
@@ -143,9 +186,10 @@ class RunRecord:
         }
 
     def to_json(self) -> dict[str, Any]:
-        """The row as JSON data: the overrides as objects rather than JSON text."""
+        """The row as JSON data: the overrides and configurations as objects rather than JSON
+        text."""
         row = self.row()
-        for name in ("optimizer_overrides", "scenario_overrides"):
+        for name in JSON_COLUMNS:
             row[name] = json.loads(row[name])
         return row
 
@@ -206,3 +250,114 @@ def is_timing_column(name: str) -> bool:
         return True
     info = metric_of(name)
     return info is not None and info.timing
+
+
+# --- what a stored row ran ---------------------------------------------------------------------
+
+
+def stored_budget(row: Mapping[str, Any]) -> Budget | None:
+    """The per-solve budget a stored row asked for; None: the optimiser's own."""
+    max_evaluations = _count(row.get("budget_max_evaluations"))
+    max_iterations = _count(row.get("budget_max_iterations"))
+    deadline_ms = row.get("budget_deadline_ms")
+    deadline_s = None if _missing(deadline_ms) else deadline_s_of_ms(deadline_ms)
+    if max_evaluations is None and max_iterations is None and deadline_s is None:
+        return None
+    return Budget(max_evaluations, max_iterations, deadline_s)
+
+
+STORED_CONFIGURATION_COLUMNS = (
+    "scenario_config",
+    "optimizer_config",
+    "scenario_name",
+    "scenario_overrides",
+    "optimizer_name",
+    "optimizer_overrides",
+    "config_hash",
+    "budget_max_evaluations",
+    "budget_max_iterations",
+    "budget_deadline_ms",
+)
+"""The columns of a stored row that :func:`stored_configuration` reads."""
+
+
+def stored_scenario(row: Mapping[str, Any]) -> Scenario | None:
+    """The scenario a stored row ran (under its registered name), rebuilt from its
+    ``scenario_config``; None if it cannot be rebuilt here (see :func:`stored_configuration`)."""
+    config = _json(row.get("scenario_config"))
+    if config is not None:
+        return _rebuilt(Scenario, config)
+    return stored_configuration(row)[0]
+
+
+def stored_optimizer(row: Mapping[str, Any]) -> Optimizer | None:
+    """The optimiser a stored row ran, rebuilt from its ``optimizer_config``; None if it
+    cannot be rebuilt here (see :func:`stored_configuration`)."""
+    return stored_configuration(row)[1]
+
+
+def stored_configuration(row: Mapping[str, Any]) -> tuple[Scenario | None, Optimizer | None]:
+    """The scenario and optimiser a stored row ran, each None where it cannot be rebuilt.
+
+    A row holding its configuration is rebuilt from it alone (:func:`from_config`): no
+    registry and no default of today enters, but for a setting added since (which keeps its
+    default). The optimiser's class must be imported (a plugin's, by loading the plugin). A row
+    stored before configurations were recorded is rebuilt from today's registry, by name and
+    overrides, only when that gives exactly the configuration it ran: its ``config_hash``.
+    """
+    scenario_config = _json(row.get("scenario_config"))
+    optimizer_config = _json(row.get("optimizer_config"))
+    if scenario_config is None or optimizer_config is None:
+        return _registry_configuration(row)
+    scenario = _rebuilt(Scenario, scenario_config)
+    optimizer_class = _optimizer_class(str(optimizer_config.get("class", "")))
+    optimizer = None if optimizer_class is None else _rebuilt(optimizer_class, optimizer_config)
+    return scenario, optimizer  # type: ignore[return-value]
+
+
+def _registry_configuration(row: Mapping[str, Any]) -> tuple[Scenario | None, Optimizer | None]:
+    try:
+        scenario = get_scenario(
+            str(row["scenario_name"]), **from_json_value(json.loads(row["scenario_overrides"]))
+        )
+        optimizer = get_optimizer(
+            str(row["optimizer_name"]), **from_json_value(json.loads(row["optimizer_overrides"]))
+        )
+        budget = solve_budget(stored_budget(row), optimizer)
+    except (KeyError, ValueError, TypeError):  # not registered here, or no longer valid
+        return None, None
+    if resolved_config_hash(scenario, optimizer, budget) != row.get("config_hash"):
+        return None, None  # today's registry would read it with other settings than it ran
+    return scenario, optimizer
+
+
+def _rebuilt(cls: type, config: dict[str, Any]) -> Any:
+    try:
+        return from_config(cls, config)
+    except (ValueError, TypeError, KeyError):  # a stored setting today's checks refuse
+        return None
+
+
+def _optimizer_class(qualname: str) -> type | None:
+    """The one imported optimiser class of that name (None if none or several)."""
+    found, pending = set(), [Optimizer]
+    while pending:
+        cls = pending.pop()
+        pending.extend(cls.__subclasses__())
+        if cls.__qualname__ == qualname and dataclasses.is_dataclass(cls):
+            found.add(cls)
+    return found.pop() if len(found) == 1 else None
+
+
+def _missing(value: Any) -> bool:
+    return value is None or (isinstance(value, float) and math.isnan(value))
+
+
+def _count(value: Any) -> int | None:
+    return None if _missing(value) else int(value)
+
+
+def _json(value: Any) -> dict[str, Any] | None:
+    if isinstance(value, str) and value:
+        return json.loads(value)
+    return value if isinstance(value, dict) else None

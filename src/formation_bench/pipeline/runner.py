@@ -1,5 +1,6 @@
 """One closed-loop run end to end: :func:`execute` turns a :class:`RunSpec` into a
-:class:`RunRecord` and a trace; the figures of one run are drawn here too."""
+:class:`RunRecord` and a trace. It returns them and draws nothing: the figures of a run are
+:mod:`formation_bench.analysis.run_figures`'s."""
 
 from __future__ import annotations
 
@@ -13,11 +14,12 @@ import numpy as np
 
 from formation_bench.mpc.cost import Penalties, compiled_cost, pack_problem, packed_batch_cost
 from formation_bench.mpc.loop import ProgressCallback, Trace, simulate
-from formation_bench.mpc.metrics import compute_metrics, pair_names
+from formation_bench.mpc.metrics import compute_metrics
 from formation_bench.mpc.model import rollout
-from formation_bench.pipeline.outputs import seed_column, text_column, trace_frame
+from formation_bench.pipeline import outputs
 from formation_bench.pipeline.record import Provenance, RunDescription, RunRecord
 from formation_bench.pipeline.spec import RunSpec
+from formation_bench.pipeline.trace_columns import RunLabels
 from formation_bench.plugins import load_plugins
 
 if TYPE_CHECKING:
@@ -37,7 +39,7 @@ class RunOutcome:
     @functools.cached_property
     def frame(self) -> pd.DataFrame:
         """The trace table as a pandas DataFrame (converted on first use: the figures and a
-        sweep's store need it, a run without figures does not import pandas)."""
+        sweep's store need it, a run without either does not import pandas)."""
         return self.table.to_pandas()
 
 
@@ -88,7 +90,7 @@ def execute(spec: RunSpec, *, progress: ProgressCallback | None = None) -> RunOu
     metrics = compute_metrics(trace)
     table = trace_table(trace, spec)
     record = RunRecord(
-        RunDescription.of(spec, scenario.n_steps, scenario.settle_time_s),
+        RunDescription.of(spec, scenario.timing.n_steps, scenario.evaluation.settle_time_s),
         metrics,
         Provenance.here(time.perf_counter() - start),
     )
@@ -96,48 +98,13 @@ def execute(spec: RunSpec, *, progress: ProgressCallback | None = None) -> RunOu
 
 
 def trace_table(trace: Trace, spec: RunSpec) -> pa.Table:
-    """The trace as a long table, labelled as the run's record is (seed, budget)."""
-    table = trace_frame(trace)
-    n_rows = table.num_rows
-    table = table.set_column(
-        table.schema.get_field_index("seed"), "seed", seed_column(spec.seed, n_rows)
+    """The trace as a long table (:func:`~formation_bench.pipeline.outputs.trace_table`),
+    labelled as the run's record is (its seed as given, its budget)."""
+    labels = RunLabels(
+        optimizer=trace.optimizer,
+        scenario=trace.scenario.name,
+        trigger=trace.trigger,
+        budget=spec.budget_label,
+        seed=spec.seed,
     )
-    return table.add_column(
-        table.schema.get_field_index("trigger") + 1,
-        "budget",
-        text_column(spec.budget_label, n_rows),
-    )
-
-
-def write_figures(
-    outcome: RunOutcome, out_dir: Path, suffix: str, fig_numbers: tuple[int, int]
-) -> list[Path]:
-    """Trajectory, states and separation figures of one run; returns the paths written.
-
-    The first two are numbered as the paper's (``fig3_trajectory_no_trigger.png``, ...); the
-    separation figure, which the paper has not, is ``separation_<suffix>.png``.
-    """
-    from formation_bench.analysis import run_figures as figures  # when drawing
-
-    scenario = outcome.trace.scenario
-    desired = scenario.desired_distances()
-    desired_by_name = {name: float(desired[i, j]) for name, i, j in pair_names(scenario.n_uav)}
-    trajectory = out_dir / f"fig{fig_numbers[0]}_trajectory_{suffix}.png"
-    states = out_dir / f"fig{fig_numbers[1]}_states_{suffix}.png"
-    separation = out_dir / f"separation_{suffix}.png"
-    frame = outcome.frame
-    figures.save(figures.trajectory_figure(frame, scenario), trajectory)
-    figures.save(
-        figures.states_figure(frame, desired_by_name, scenario.settle_time_s, scenario), states
-    )
-    figures.save(figures.separation_figure(frame, scenario), separation)
-    return [trajectory, states, separation]
-
-
-def write_trigger_figure(outcome: RunOutcome, out_dir: Path, name: str) -> Path:
-    """Fig. 7 for one run."""
-    from formation_bench.analysis import run_figures as figures
-
-    path = out_dir / name
-    figures.save(figures.trigger_figure(outcome.frame), path)
-    return path
+    return outputs.trace_table(trace, labels)

@@ -259,7 +259,7 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
         x0: np.ndarray | None = None,
     ) -> OptimizeResult:
         problem = require_local_problem(type(self).__name__, objective)
-        budget = self.default_budget if budget is None else budget
+        budget = self.solve_budget(budget)
         max_iter = self.max_iter if budget.max_iterations is None else int(budget.max_iterations)
         x0 = warm_start_of(problem, bounds, x0)
         start = time.perf_counter()
@@ -268,7 +268,10 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
         n_states = STATE_DIM * shape.horizon_steps if self.shooting == Shooting.MULTIPLE else 0
         scenario = problem.scenario
         warm_states = numeric_rollout(
-            problem.state, problem.controls(x0), scenario.period_s, scenario.rk4_substeps
+            problem.state,
+            problem.controls(x0),
+            scenario.timing.period_s,
+            scenario.timing.rk4_substeps,
         )
         lbx, ubx = bounds.lower, bounds.upper
         primal = x0
@@ -344,8 +347,8 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
             planned = numeric_rollout(
                 problem.state,
                 problem.controls(decision),
-                scenario.period_s,
-                scenario.rk4_substeps,
+                scenario.timing.period_s,
+                scenario.timing.rk4_substeps,
             )
             self._solver_cache[memory_key] = _Memory(
                 decision.copy(),

@@ -386,7 +386,7 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
         import osqp
 
         problem = require_local_problem(type(self).__name__, objective)
-        budget = self.default_budget if budget is None else budget
+        budget = self.solve_budget(budget)
         rounds = (
             self.sqp_iterations if budget.max_iterations is None else int(budget.max_iterations)
         )
@@ -476,7 +476,10 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
             scenario = problem.scenario
             entry.decision = current.copy()
             entry.states = numeric_rollout(
-                problem.state, problem.controls(current), scenario.period_s, scenario.rk4_substeps
+                problem.state,
+                problem.controls(current),
+                scenario.timing.period_s,
+                scenario.timing.rk4_substeps,
             )
             self._solver_cache[key] = entry
         info["solve_time_s"] = time.perf_counter() - start

@@ -63,16 +63,16 @@ class ProblemShape:
         collision = penalties.w_collision > 0
         n_obstacles = penalties.obstacles.shape[0] if penalties.w_obstacle > 0 else 0
         return cls(
-            horizon_steps=int(scenario.horizon_steps),
-            n_blocks=int(scenario.n_blocks),
+            horizon_steps=int(scenario.timing.horizon_steps),
+            n_blocks=int(scenario.timing.n_blocks),
             block_of_step=tuple(int(b) for b in problem.block_of_step),
             n_neighbours=int(problem.neighbour_positions.shape[0]),
             centre_group=int(problem.centre_group),
             group_centre=problem.centre_offset_sum is not None,
-            period_s=float(scenario.period_s),
-            rk4_substeps=int(scenario.rk4_substeps),
-            w_dst=float(scenario.w_dst),
-            w_trj=float(scenario.w_trj),
+            period_s=float(scenario.timing.period_s),
+            rk4_substeps=int(scenario.timing.rk4_substeps),
+            w_dst=float(scenario.weights.w_dst),
+            w_trj=float(scenario.weights.w_trj),
             w_collision=float(penalties.w_collision) if collision else 0.0,
             safety_radius=float(penalties.safety_radius) if collision else 0.0,
             n_obstacles=int(n_obstacles),

@@ -1,0 +1,347 @@
+"""Population optimisers written once, as compiled ask/tell kernels over a named state.
+
+An optimiser of this kind (:class:`AskTellOptimizer`) supplies
+
+* its **state**, a :class:`typing.NamedTuple` of arrays and numbers (numba compiles a
+  NamedTuple into a struct, and a kernel returns a new one);
+* its **params**, the tuple of settings its kernels read, built once per solve from its
+  declared fields (:meth:`AskTellOptimizer.params`);
+* two compiled **kernels** (``@njit(cache=True)``):
+
+  .. code-block:: python
+
+      ask(state, params, uniforms, normals, iteration, remaining) -> (state, candidates, last)
+      tell(state, params, candidates, costs, iteration) -> state
+
+  ``uniforms`` and ``normals`` are the iteration's random numbers (one row of the block drawn
+  ahead, see :class:`DrawPlan`); ``remaining`` is the number of evaluations left;
+  ``candidates`` is a C-contiguous ``(m, d)`` array (``m`` may be 0). The loop evaluates its
+  first ``min(m, remaining)`` rows and gives ``tell`` their costs (``+inf`` for a non-finite
+  cost), so ``costs`` may be shorter than ``candidates``. An iteration is one or more
+  ask/tell rounds: it ends after the round whose ``ask`` says ``last`` (a method whose
+  iteration evaluates in two stages, or one point at a time, asks again);
+* the registration of its kernels for its state's class (:func:`register_kernels`) and a
+  cached three-line wrapper of :func:`iterate` in its own module.
+
+Every solve drives those same kernels in compiled code (:func:`iterate`): the objective is
+called through its compiled handle when it has one (the harness's), and otherwise through a C
+callback into the Python objective (:mod:`~formation_bench.optimizers.tallies`). Only a
+configuration whose ``ask`` is Python itself runs the same rounds from Python. The random
+numbers are drawn by one outer loop (:func:`run_blocks`), so every path gives the same result
+to the bit: there is one implementation of each update rule, and no second one to keep in
+step.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Callable
+from dataclasses import dataclass
+from time import perf_counter
+from typing import Any, NamedTuple
+
+import numpy as np
+from numba import njit, types
+from numba.extending import overload
+
+from formation_bench.optimizers.base import (
+    Bounds,
+    Budget,
+    EvaluationCounter,
+    OptimizeResult,
+    PopulationOptimizer,
+    check_rng,
+    check_x0,
+)
+from formation_bench.optimizers.compiled import NFEV, UNLIMITED, evaluate, remaining
+from formation_bench.optimizers.population import (
+    ROWS_AHEAD,
+    UNIFORM_START,
+    WarmStartInit,
+    initial_population,
+    iteration_randoms,
+    no_randoms,
+    starting_points,
+)
+from formation_bench.optimizers.tallies import Draws, History, Tally, open_tally
+
+
+@dataclass(frozen=True)
+class DrawPlan:
+    """The random numbers one iteration reads.
+
+    ``uniforms`` uniforms and a block of standard normals of shape ``normal_shape``, drawn
+    ahead for up to 64 iterations in two Generator calls
+    (:func:`~formation_bench.optimizers.population.iteration_randoms`). With ``per_batch``,
+    the iteration draws no normals and its uniforms are ``per_batch(m)`` for the ``m``
+    candidates the budget lets it evaluate (``m = min(batch, left)``): the numbers of one
+    ``rng.random`` call per iteration, drawn together (:func:`per_batch_draws`).
+    """
+
+    uniforms: int
+    """Uniforms per iteration (per full batch with ``per_batch``)."""
+    normal_shape: tuple[int, ...] = (0,)
+    """Shape of one iteration's block of standard normals."""
+    per_batch: Callable[[int], int] | None = None
+    """``m -> uniforms`` of an iteration evaluating ``m`` rows; None: draws ahead."""
+    batch: int = 0
+    """Rows one iteration evaluates when the budget allows (with ``per_batch``)."""
+
+
+def ask(state, params, uniforms, normals, iteration, remaining):  # type: ignore[no-untyped-def]
+    """The ``ask`` kernel registered for ``state``'s class (:func:`register_kernels`)."""
+    raise TypeError("ask() is resolved in compiled code by the class of its state")
+
+
+def tell(state, params, candidates, costs, iteration):  # type: ignore[no-untyped-def]
+    """The ``tell`` kernel registered for ``state``'s class (:func:`register_kernels`)."""
+    raise TypeError("tell() is resolved in compiled code by the class of its state")
+
+
+def register_kernels(state_class: type, ask_kernel: Any, tell_kernel: Any) -> None:
+    """Make :func:`ask` and :func:`tell` in compiled code call ``ask_kernel`` and
+    ``tell_kernel`` for a state of ``state_class``.
+
+    The kernels are chosen while compiling, by the state's type: a compiled function given
+    another one as an argument would be a dynamic global, which numba cannot cache. The
+    overloads are not cached themselves (their cache would be checked against this file
+    only, and keep a kernel's old code after an edit of its module): they are compiled into,
+    and cached with, each optimiser's ``*_iterate`` wrapper. They are inlined, so that the
+    state's arrays are not passed through a call and its reference counts every round.
+    """
+
+    def matches(state: Any) -> bool:
+        return isinstance(state, types.BaseNamedTuple) and state.instance_class is state_class
+
+    @overload(ask, inline="always")
+    def _ask(state, params, uniforms, normals, iteration, remaining):  # type: ignore[no-untyped-def]
+        if matches(state):
+            return lambda state, params, uniforms, normals, iteration, remaining: ask_kernel(
+                state, params, uniforms, normals, iteration, remaining
+            )
+        return None
+
+    @overload(tell, inline="always")
+    def _tell(state, params, candidates, costs, iteration):  # type: ignore[no-untyped-def]
+        if matches(state):
+            return lambda state, params, candidates, costs, iteration: tell_kernel(
+                state, params, candidates, costs, iteration
+            )
+        return None
+
+
+# Not cached itself: each optimiser caches it inside a three-line wrapper in its own module
+# (see the module docstring), so that editing the optimiser's kernels invalidates the cache
+# (numba checks only the source file of the cached function).
+@njit
+def iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def]
+    """Iterations ``nit + 1``, ... ``nit + rows`` of a compiled solve, while evaluations are
+    left, with the kernels registered for ``state``'s class. Returns ``(state, iterations
+    done)``."""
+    done = 0
+    for row in range(rows):
+        if remaining(block.counts) <= 0:
+            break
+        nit += 1
+        uniforms = block.uniforms[row]
+        normals = block.normals[row]
+        last = False
+        while not last:
+            state, candidates, last = ask(
+                state, params, uniforms, normals, nit, remaining(block.counts)
+            )
+            allowed = min(candidates.shape[0], remaining(block.counts))
+            costs = evaluate(block.address, block.data, candidates, allowed, block.counts,
+                             block.best)  # fmt: skip
+            state = tell(state, params, candidates, costs, nit)
+        block.history_nfev[done] = block.counts[NFEV]
+        block.history_fun[done] = block.best[0]
+        done += 1
+    return state, done
+
+
+class Kernels(NamedTuple):
+    """An optimiser's compiled kernels (see the module docstring)."""
+
+    ask: Any
+    """``(state, params, uniforms, normals, iteration, remaining) -> (state, candidates,
+    last)``."""
+    tell: Any
+    """``(state, params, candidates, costs, iteration) -> state``."""
+    iterate: Any
+    """``(state, params, block, nit, rows) -> (state, done)``: the optimiser's cached wrapper
+    of :func:`iterate`."""
+
+
+class AskTellOptimizer(PopulationOptimizer[Any]):
+    """A population optimiser given by its kernels; the base class runs both solve loops.
+
+    Subclasses (frozen dataclasses with their declared settings) define :attr:`kernels`,
+    :meth:`params`, :meth:`start`, :meth:`draw_plan` and the planning methods of
+    :class:`~formation_bench.optimizers.base.PopulationOptimizer`
+    (``evaluations_per_step``, ``default_budget``), and may define :meth:`result_info` and
+    :meth:`initialisation`.
+    """
+
+    kernels: Kernels
+    """The compiled kernels (a class attribute)."""
+
+    @abc.abstractmethod
+    def params(self, bounds: Bounds, t_max: int) -> tuple:
+        """The settings the kernels read, for a solve over ``bounds`` planning ``t_max``."""
+
+    @abc.abstractmethod
+    def start(
+        self, points: np.ndarray, costs: np.ndarray, rng: np.random.Generator, params: tuple
+    ) -> Any:
+        """The state after the initial population ``points`` (their ``costs``, ``+inf`` where
+        the budget left a row unevaluated); may draw further numbers from ``rng``."""
+
+    @abc.abstractmethod
+    def draw_plan(self, n: int, d: int) -> DrawPlan:
+        """The random numbers of one iteration, for ``n`` members in ``d`` dimensions."""
+
+    def initialisation(self) -> WarmStartInit:
+        """How the initial population is drawn (uniform with the warm start in row 0)."""
+        return self if isinstance(self, WarmStartInit) else UNIFORM_START
+
+    def population(self) -> int:
+        """Size of the initial population."""
+        return int(self.population_size)  # type: ignore[attr-defined]
+
+    def result_info(self, state: Any) -> dict[str, Any]:
+        return {}
+
+    def init(
+        self,
+        counter: EvaluationCounter,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        x0: np.ndarray | None,
+        max_iterations: int,
+    ) -> Any:
+        points, costs = initial_population(
+            counter, bounds, rng, self.population(), x0, self.initialisation()
+        )
+        return self.start(points, costs, rng, self.params(bounds, max_iterations))
+
+    def step(
+        self,
+        state: Any,
+        counter: EvaluationCounter,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        iteration: int,
+    ) -> Any:
+        raise TypeError(f"{type(self).__name__} runs its iterations in blocks, not by step()")
+
+    def has_compiled_loop(self) -> bool:
+        """Whether a compiled objective's iterations run in compiled code (False when a
+        configuration's ``ask`` or ``tell`` is Python: the objective is then called from
+        Python too)."""
+        return True
+
+    def minimize(
+        self,
+        objective: Any,
+        bounds: Bounds,
+        rng: np.random.Generator,
+        budget: Budget | None = None,
+        x0: np.ndarray | None = None,
+    ) -> OptimizeResult:
+        started = perf_counter()
+        rng = check_rng(rng)
+        budget = self.solve_budget(budget)
+        x0 = check_x0(x0, bounds)
+        t_max = self.planned_iterations(budget)
+        params = self.params(bounds, t_max)
+        tally = open_tally(objective, bounds.dim, budget, started, self.has_compiled_loop())
+        points = starting_points(bounds, rng, self.population(), x0, self.initialisation())
+        costs = tally.evaluate_prefix(points)
+        state = self.start(points, costs, rng, params)
+        state, nit, message, history = run_blocks(
+            self.kernels, state, params, tally, rng, budget, t_max, self.draw_plan(*points.shape)
+        )
+        return tally.result(nit, message, history, self.result_info(state))
+
+
+def run_blocks(
+    kernels: Kernels,
+    state: Any,
+    params: tuple,
+    tally: Tally,
+    rng: np.random.Generator,
+    budget: Budget,
+    t_max: int,
+    plan: DrawPlan,
+) -> tuple[Any, int, str, History]:
+    """The iterations of a solve, block by block: ``(state, nit, message, history)``.
+
+    Each block's numbers are drawn before it runs (:class:`DrawPlan`); a deadline is checked
+    before every iteration, which then runs alone in its block, and the evaluation budget
+    before every block (and inside it, before every iteration).
+    """
+    nfev, best_f = tally.progress()
+    history: History = ([nfev], [best_f])
+    iteration_limit = budget.max_iterations if budget.max_iterations is not None else UNLIMITED
+    deadline_s = budget.deadline_s
+    message = "iteration budget reached"
+    nit = 0
+    randoms = no_randoms(plan.uniforms, plan.normal_shape)
+    while nit < iteration_limit:
+        if tally.remaining() <= 0:
+            message = "evaluation budget reached"
+            break
+        if deadline_s is not None and perf_counter() - tally.started >= deadline_s:
+            message = "deadline reached"
+            break
+        iteration = nit + 1
+        limit = iteration if deadline_s is not None else iteration_limit
+        if plan.per_batch is None:
+            randoms, _, _ = iteration_randoms(randoms, rng, iteration, t_max)
+            offset = iteration - randoms.first_iteration
+            rows = min(randoms.uniforms.shape[0] - offset, limit - nit)
+            uniforms = randoms.uniforms[offset : offset + rows]
+            normals = randoms.normals[offset : offset + rows]
+        else:
+            uniforms, normals = per_batch_draws(rng, plan, tally.remaining(), iteration, limit,
+                                                t_max)  # fmt: skip
+            rows = uniforms.shape[0]
+        draws = Draws(uniforms, normals, np.empty(rows, dtype=np.int64), np.empty(rows))
+        state, done = tally.run(kernels, state, params, draws, nit)
+        history[0].extend(draws.history_nfev[:done].tolist())
+        history[1].extend(draws.history_fun[:done].tolist())
+        nit += done
+    else:
+        if tally.remaining() <= 0:
+            message = "evaluation budget reached"
+    return state, nit, message, history
+
+
+def per_batch_draws(
+    rng: np.random.Generator, plan: DrawPlan, left: int, iteration: int, limit: int, t_max: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The uniforms of the next iterations of a per-batch plan, one row each.
+
+    The iterations such a loop runs are known before they start (each takes ``min(batch,
+    left)`` of the ``left`` evaluations), and so are the sizes of their draws. A Generator
+    fills an array one number after the other from one stream, so one ``rng.random`` call of
+    their total gives the numbers of the separate calls, in order, and leaves ``rng`` where
+    they leave it. The block covers the iterations :func:`iteration_randoms` would cover,
+    the iteration limit and the evaluations left allow; row ``j`` holds iteration ``j``'s
+    numbers (the last row padded with zeros, never read, when its batch is cut short).
+    """
+    assert plan.per_batch is not None
+    batch = plan.batch
+    rows = min(min(max(t_max - iteration + 1, 1), ROWS_AHEAD), limit - iteration + 1,
+               -(-left // batch))  # fmt: skip
+    full = plan.per_batch(batch)
+    # every iteration but the last takes a full batch; the last may take what is left
+    last = plan.per_batch(min(batch, left - (rows - 1) * batch))
+    flat = rng.random(full * (rows - 1) + last)
+    if last == full:
+        return flat.reshape(rows, full), np.zeros((rows, 0))
+    uniforms = np.zeros((rows, full))
+    uniforms[: rows - 1] = flat[: full * (rows - 1)].reshape(rows - 1, full)
+    uniforms[rows - 1, :last] = flat[full * (rows - 1) :]
+    return uniforms, np.zeros((rows, 0))
