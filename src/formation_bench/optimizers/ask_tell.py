@@ -259,10 +259,47 @@ class AskTellOptimizer(PopulationOptimizer[Any]):
         points = starting_points(bounds, rng, self.population(), x0, self.initialisation())
         costs = tally.evaluate_prefix(points)
         state = self.start(points, costs, rng, params)
+        source = PlannedDraws(self.draw_plan(*points.shape), t_max)
         state, nit, message, history = run_blocks(
-            self.kernels, state, params, tally, rng, budget, t_max, self.draw_plan(*points.shape)
+            self.kernels, state, params, tally, rng, budget, source
         )
         return tally.result(nit, message, history, self.result_info(state))
+
+
+class BlockSource(abc.ABC):
+    """Where the random numbers of a solve's next block of iterations come from, and what
+    happens between blocks (a restart, say)."""
+
+    @abc.abstractmethod
+    def next_block(
+        self, state: Any, rng: np.random.Generator, iteration: int, rows: int, left: int
+    ) -> tuple[Any, np.ndarray, np.ndarray]:
+        """``(state, uniforms, normals)`` of at most ``rows`` iterations from ``iteration`` on,
+        one row each, with ``left`` evaluations left."""
+
+    def iterations_done(self, state: Any, nit: int, done: int) -> int:
+        """Of the ``done`` iterations a block ran after iteration ``nit``, those that count."""
+        return done
+
+
+class PlannedDraws(BlockSource):
+    """The numbers of a :class:`DrawPlan`: drawn ahead (up to 64 iterations, bounded by the
+    ``t_max`` planned) or per batch (:func:`per_batch_draws`)."""
+
+    def __init__(self, plan: DrawPlan, t_max: int) -> None:
+        self.plan, self.t_max = plan, t_max
+        self.randoms = no_randoms(plan.uniforms, plan.normal_shape)
+
+    def next_block(
+        self, state: Any, rng: np.random.Generator, iteration: int, rows: int, left: int
+    ) -> tuple[Any, np.ndarray, np.ndarray]:
+        if self.plan.per_batch is not None:
+            return state, *per_batch_draws(rng, self.plan, left, iteration, rows, self.t_max)
+        self.randoms, _, _ = iteration_randoms(self.randoms, rng, iteration, self.t_max)
+        offset = iteration - self.randoms.first_iteration
+        rows = min(self.randoms.uniforms.shape[0] - offset, rows)
+        uniforms = self.randoms.uniforms[offset : offset + rows]
+        return state, uniforms, self.randoms.normals[offset : offset + rows]
 
 
 def run_blocks(
@@ -272,14 +309,13 @@ def run_blocks(
     tally: Tally,
     rng: np.random.Generator,
     budget: Budget,
-    t_max: int,
-    plan: DrawPlan,
+    source: BlockSource,
 ) -> tuple[Any, int, str, History]:
     """The iterations of a solve, block by block: ``(state, nit, message, history)``.
 
-    Each block's numbers are drawn before it runs (:class:`DrawPlan`); a deadline is checked
-    before every iteration, which then runs alone in its block, and the evaluation budget
-    before every block (and inside it, before every iteration).
+    Each block's numbers come from ``source`` before it runs; a deadline is checked before
+    every iteration, which then runs alone in its block, and the evaluation budget before
+    every block (and inside it, before every iteration).
     """
     nfev, best_f = tally.progress()
     history: History = ([nfev], [best_f])
@@ -287,7 +323,6 @@ def run_blocks(
     deadline_s = budget.deadline_s
     message = "iteration budget reached"
     nit = 0
-    randoms = no_randoms(plan.uniforms, plan.normal_shape)
     while nit < iteration_limit:
         if tally.remaining() <= 0:
             message = "evaluation budget reached"
@@ -295,20 +330,12 @@ def run_blocks(
         if deadline_s is not None and perf_counter() - tally.started >= deadline_s:
             message = "deadline reached"
             break
-        iteration = nit + 1
-        limit = iteration if deadline_s is not None else iteration_limit
-        if plan.per_batch is None:
-            randoms, _, _ = iteration_randoms(randoms, rng, iteration, t_max)
-            offset = iteration - randoms.first_iteration
-            rows = min(randoms.uniforms.shape[0] - offset, limit - nit)
-            uniforms = randoms.uniforms[offset : offset + rows]
-            normals = randoms.normals[offset : offset + rows]
-        else:
-            uniforms, normals = per_batch_draws(rng, plan, tally.remaining(), iteration, limit,
-                                                t_max)  # fmt: skip
-            rows = uniforms.shape[0]
+        rows = 1 if deadline_s is not None else iteration_limit - nit
+        state, uniforms, normals = source.next_block(state, rng, nit + 1, rows, tally.remaining())
+        rows = uniforms.shape[0]
         draws = Draws(uniforms, normals, np.empty(rows, dtype=np.int64), np.empty(rows))
         state, done = tally.run(kernels, state, params, draws, nit)
+        done = source.iterations_done(state, nit, done)
         history[0].extend(draws.history_nfev[:done].tolist())
         history[1].extend(draws.history_fun[:done].tolist())
         nit += done
@@ -319,7 +346,7 @@ def run_blocks(
 
 
 def per_batch_draws(
-    rng: np.random.Generator, plan: DrawPlan, left: int, iteration: int, limit: int, t_max: int
+    rng: np.random.Generator, plan: DrawPlan, left: int, iteration: int, most: int, t_max: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """The uniforms of the next iterations of a per-batch plan, one row each.
 
@@ -327,14 +354,14 @@ def per_batch_draws(
     left)`` of the ``left`` evaluations), and so are the sizes of their draws. A Generator
     fills an array one number after the other from one stream, so one ``rng.random`` call of
     their total gives the numbers of the separate calls, in order, and leaves ``rng`` where
-    they leave it. The block covers the iterations :func:`iteration_randoms` would cover,
-    the iteration limit and the evaluations left allow; row ``j`` holds iteration ``j``'s
-    numbers (the last row padded with zeros, never read, when its batch is cut short).
+    they leave it. The block covers the iterations :func:`iteration_randoms` would cover, at
+    most ``most`` and as many as the evaluations left allow; row ``j`` holds iteration
+    ``j``'s numbers (the last row padded with zeros, never read, when its batch is cut
+    short).
     """
     assert plan.per_batch is not None
     batch = plan.batch
-    rows = min(min(max(t_max - iteration + 1, 1), ROWS_AHEAD), limit - iteration + 1,
-               -(-left // batch))  # fmt: skip
+    rows = min(max(t_max - iteration + 1, 1), ROWS_AHEAD, most, -(-left // batch))
     full = plan.per_batch(batch)
     # every iteration but the last takes a full batch; the last may take what is left
     last = plan.per_batch(min(batch, left - (rows - 1) * batch))

@@ -66,6 +66,7 @@ from formation_bench.optimizers.ask_tell import (
     Kernels,
     iterate,
     register_kernels,
+    run_blocks,
 )
 from formation_bench.optimizers.base import (
     Bounds,
@@ -86,11 +87,11 @@ from formation_bench.optimizers.cma_ops import (
     sample,
 )
 from formation_bench.optimizers.cma_restarts import (
+    CampaignDraws,
     CMAState,
     Restarts,
     campaign_info,
     first_run,
-    run_campaign,
 )
 from formation_bench.optimizers.registry import register
 from formation_bench.optimizers.tallies import open_tally
@@ -163,7 +164,7 @@ def cma_ask(state, params, uniforms, normals, iteration, remaining):  # type: ig
     The update waits for the next generation so that a solve's last generation, which no
     generation follows, is not learned from, and a run is checked for a stop only when
     budget is left to restart it. A run that stops samples nothing (0 candidates) and keeps
-    doing so: the solve loop restarts it (:func:`~.cma_restarts.run_campaign`).
+    doing so: the solve loop restarts it (:class:`~.cma_restarts.CampaignDraws`).
     """
     run = state.run
     if run.progress.stop != RUNNING:
@@ -256,7 +257,7 @@ class CMAES(CMAConfig, AskTellOptimizer):
         return first_run(self, Bounds(settings.lower, settings.upper), points[0])
 
     def draw_plan(self, n: int, d: int) -> DrawPlan:
-        """Not used: lambda changes at restarts, so :func:`~.cma_restarts.run_campaign` draws
+        """Not used: lambda changes at restarts, so :class:`~.cma_restarts.CampaignDraws` draws
         the numbers (see :mod:`.cma_restarts`)."""
         raise TypeError("CMA-ES draws its random numbers run by run (cma_restarts.draw)")
 
@@ -272,7 +273,7 @@ class CMAES(CMAConfig, AskTellOptimizer):
         x0: np.ndarray | None = None,
     ) -> OptimizeResult:
         """The solve: the start (``x0``, else a uniform point) evaluated, then the runs of
-        :func:`~.cma_restarts.run_campaign`, in compiled code (see
+        :class:`~.cma_restarts.CampaignDraws`, in compiled code (see
         :func:`~formation_bench.optimizers.tallies.open_tally`)."""
         started = perf_counter()
         rng = check_rng(rng)
@@ -283,8 +284,10 @@ class CMAES(CMAConfig, AskTellOptimizer):
         tally = open_tally(objective, bounds.dim, budget, started, compiled_loop=True)
         tally.evaluate_prefix(start)
         state = first_run(self, bounds, start[0])
-        state, nit, message, history = run_campaign(self, state, params, tally, rng, budget,
-                                                    bounds)  # fmt: skip
+        source = CampaignDraws(self, bounds, self.planned_iterations(budget))
+        state, nit, message, history = run_blocks(
+            self.kernels, state, params, tally, rng, budget, source
+        )
         return tally.result(nit, message, history, self.result_info(state))
 
 

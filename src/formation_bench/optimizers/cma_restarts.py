@@ -25,18 +25,18 @@ Doubling stops at 2^9 times the default lambda.
 **Random numbers.** A restart draws from the Generator (the new mean, BIPOP's two uniforms)
 and changes lambda, so the numbers of the generations are drawn here, between the kernels'
 blocks (:func:`draw`), as far ahead as the budget reaches: the normals of a block are
-``(rows, lambda, n)``. A run that stops ends its block early (:func:`run_campaign`).
+``(rows, lambda, n)``. A run that stops ends its block early (:class:`CampaignDraws`).
 """
 
 from __future__ import annotations
 
 import math
 from enum import IntEnum
-from time import perf_counter
 from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
+from formation_bench.optimizers.ask_tell import BlockSource
 from formation_bench.optimizers.base import Bounds, Budget
 from formation_bench.optimizers.cma_ops import (
     RUNNING,
@@ -47,9 +47,7 @@ from formation_bench.optimizers.cma_ops import (
     new_run,
     run_parameters,
 )
-from formation_bench.optimizers.compiled import UNLIMITED
 from formation_bench.optimizers.population import ROWS_AHEAD, RandomAhead
-from formation_bench.optimizers.tallies import Draws, Tally
 
 
 class CampaignSettings(Protocol):
@@ -187,61 +185,33 @@ def draw(
     return RandomAhead(iteration, normals if uniforms is None else uniforms, normals)
 
 
-def run_campaign(
-    config: CampaignSettings,
-    state: CMAState,
-    params: tuple,
-    tally: Tally,
-    rng: np.random.Generator,
-    budget: Budget,
-    bounds: Bounds,
-) -> tuple[CMAState, int, str, tuple[list[int], list[float]]]:
-    """The generations of a solve, block by block, with its restarts: ``(state, nit, message,
-    history)``.
+class CampaignDraws(BlockSource):
+    """The blocks of a CMA-ES solve: the numbers of :func:`draw` for the current run, and a
+    restart (:func:`restart`) before the next generation when the run stopped. The generation
+    whose update stopped a run samples nothing and is not done (the kernels leave the block's
+    later rows empty, and they are not counted either), so the new run's first generation
+    takes its iteration number."""
 
-    As :func:`~formation_bench.optimizers.ask_tell.run_blocks`, but with the draws of
-    :func:`draw`, and a restart before the next generation when the run stopped: the
-    generation whose update stopped it samples nothing and is not done (the kernels leave
-    the block's later rows empty, and they are not counted either), so the new run's first
-    generation takes its iteration number.
-    """
-    t_max = config.planned_iterations(budget)
-    resample = config.bound_handling is CMABoundHandling.RESAMPLE
-    nfev, best_f = tally.progress()
-    history: tuple[list[int], list[float]] = ([nfev], [best_f])
-    iteration_limit = budget.max_iterations if budget.max_iterations is not None else UNLIMITED
-    deadline_s = budget.deadline_s
-    message = "iteration budget reached"
-    nit = 0
-    block: RandomAhead | None = None
-    while nit < iteration_limit:
-        if tally.remaining() <= 0:
-            message = "evaluation budget reached"
-            break
-        if deadline_s is not None and perf_counter() - tally.started >= deadline_s:
-            message = "deadline reached"
-            break
+    def __init__(self, config: CampaignSettings, bounds: Bounds, t_max: int) -> None:
+        self.config, self.bounds, self.t_max = config, bounds, t_max
+        self.resample = config.bound_handling is CMABoundHandling.RESAMPLE
+        self.block: RandomAhead | None = None
+
+    def next_block(
+        self, state: CMAState, rng: np.random.Generator, iteration: int, rows: int, left: int
+    ) -> tuple[CMAState, np.ndarray, np.ndarray]:
         if state.run.progress.stop != RUNNING:
-            state, block = restart(config, state, bounds, rng), None
-        iteration = nit + 1
+            state, self.block = restart(self.config, state, self.bounds, rng), None
+        block = self.block
         if block is None or iteration - block.first_iteration >= block.normals.shape[0]:
-            block = draw(state, rng, tally.remaining(), iteration, t_max, resample)
-        limit = iteration if deadline_s is not None else iteration_limit
+            block = self.block = draw(state, rng, left, iteration, self.t_max, self.resample)
         offset = iteration - block.first_iteration
-        rows = min(block.normals.shape[0] - offset, limit - nit)
-        draws = Draws(block.uniforms[offset : offset + rows], block.normals[offset : offset + rows],
-                      np.empty(rows, dtype=np.int64), np.empty(rows))  # fmt: skip
-        state, done = tally.run(config.kernels, state, params, draws, nit)
+        rows = min(block.normals.shape[0] - offset, rows)
+        return state, block.uniforms[offset : offset + rows], block.normals[offset : offset + rows]
+
+    def iterations_done(self, state: CMAState, nit: int, done: int) -> int:
         stopped_at = state.run.progress.stopped_at
-        if stopped_at > 0:
-            done = stopped_at - 1 - nit
-        history[0].extend(draws.history_nfev[:done].tolist())
-        history[1].extend(draws.history_fun[:done].tolist())
-        nit += done
-    else:
-        if tally.remaining() <= 0:
-            message = "evaluation budget reached"
-    return state, nit, message, history
+        return stopped_at - 1 - nit if stopped_at > 0 else done
 
 
 def campaign_info(state: CMAState) -> dict[str, Any]:

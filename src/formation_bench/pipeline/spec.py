@@ -16,6 +16,7 @@ identity): :func:`deadline_s_of_ms` reads it, :func:`deadline_ms_of_s` writes it
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import enum
 import functools
@@ -279,7 +280,7 @@ def resolved_config_hash(
 # --- identities -------------------------------------------------------------------------------
 
 
-class Identified:
+class Identified(abc.ABC):
     """A run whose result file name (:attr:`key`) and random numbers
     (:meth:`identity_entropy`) derive from what it is (:meth:`identity`), never from where it
     sits in a queue or which worker runs it."""
@@ -288,8 +289,9 @@ class Identified:
     """Prefix of the identity in the digest the entropy is taken from: runs of two kinds with
     equal identities draw different random numbers."""
 
+    @abc.abstractmethod
     def identity(self) -> dict[str, Any]:
-        raise NotImplementedError
+        """What the run is: the fields its key and random numbers derive from."""
 
     @property
     def identity_json(self) -> str:
