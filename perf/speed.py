@@ -38,9 +38,11 @@ import numpy as np
 from formation_bench.instances.instants import RecordedInstant, record_instants
 from formation_bench.mpc.cost import NO_PENALTIES, batch_cost, batch_cost_reference
 from formation_bench.mpc.scenario import get_scenario
-from formation_bench.optimizers import EvaluationCounter, ModifiedBSO, get_optimizer
+from formation_bench.optimizers import ModifiedBSO, get_optimizer
+from formation_bench.optimizers.ask_tell import Kernels, run_blocks
 from formation_bench.optimizers.bso_ops import cluster_population
 from formation_bench.optimizers.clustering import lloyd_kmeans, sklearn_kmeans
+from formation_bench.optimizers.tallies import open_tally
 from formation_bench.pipeline.runner import execute, warm_up_kernels
 from formation_bench.pipeline.spec import RunSpec
 from perf.replay import replayed_objective_seconds, solve_batches
@@ -56,26 +58,35 @@ def replayed_clustering_seconds(
     """Time of the k-means steps of one default-budget solve, replayed outside the solve.
 
     The solve runs its k-means inside the one compiled call per iteration,
-    where it cannot be timed. So the solve is repeated step by step with the
-    same ``rng``, and the compiled k-means step (``cluster_population``: k-means
-    from m random distinct members, then each cluster's best) is timed on the
-    population each iteration clusters, from m members drawn by a separate
-    generator. Each timed call also pays the entry into a kernel (about
-    0.5 µs) that the fused iteration does not: a slight overestimate.
+    where it cannot be timed. So the solve is repeated with the same ``rng``, its rounds
+    driven from Python (the same kernels, the same draws), and before each iteration's first
+    round the compiled k-means step (``cluster_population``: k-means from m random distinct
+    members, then each cluster's best) is timed on the population the iteration clusters,
+    from m members drawn by a separate generator. Each timed call also pays the entry into
+    a kernel (about 0.5 µs) that the compiled loop does not: a slight overestimate.
     """
     problem = instant.problem
-    counter = EvaluationCounter(problem, problem.dim, None)
-    t_max = optimizer.planned_iterations(optimizer.default_budget)
-    state = optimizer.init(counter, problem.bounds, rng, instant.warm_start, t_max)
+    budget = optimizer.default_budget
+    t_max = optimizer.planned_iterations(budget)
+    params = optimizer.params(problem.bounds, t_max)
+    tally = open_tally(problem, problem.dim, budget, time.perf_counter(), compiled_loop=False)
+    points = optimizer.initial_points(problem.bounds, rng, instant.warm_start)
+    state = optimizer.start(points, tally.evaluate_prefix(points), rng, params)
     seeds = np.random.default_rng(1).random((t_max, optimizer.n_clusters))
-    total = 0.0
-    for iteration in range(1, t_max + 1):
-        x, f = state.population()
-        start = time.perf_counter()
-        cluster_population(x, f, seeds[iteration - 1], optimizer.kmeans_max_iter)
-        total += time.perf_counter() - start
-        state = optimizer.step(state, counter, problem.bounds, rng, iteration)
-    return total
+    timed: dict[int, float] = {}
+
+    def timed_ask(state, params, uniforms, normals, iteration, remaining):  # type: ignore[no-untyped-def]
+        if iteration not in timed:
+            start = time.perf_counter()
+            cluster_population(state.x, state.f, seeds[(iteration - 1) % t_max],
+                               optimizer.kmeans_max_iter)  # fmt: skip
+            timed[iteration] = time.perf_counter() - start
+        return optimizer.kernels.ask(state, params, uniforms, normals, iteration, remaining)
+
+    kernels = Kernels(timed_ask, optimizer.kernels.tell, None)
+    source = optimizer.block_source(problem.bounds, points.shape, t_max)
+    run_blocks(kernels, state, params, tally, rng, budget, source)
+    return sum(timed.values())
 
 
 def default_population_size() -> int:

@@ -21,7 +21,7 @@ from formation_bench.instances.instants import record_instants
 from formation_bench.mpc.metrics import column_label
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import Budget, get_optimizer
-from formation_bench.pipeline.record import STORED_CONFIGURATION_COLUMNS, stored_scenario
+from formation_bench.pipeline.record import stored_scenarios
 
 COMPARED_METRICS = (
     "steady_state_cost",
@@ -241,16 +241,12 @@ def uav_counts(runs: pd.DataFrame) -> pd.Series:
 def trigger_tradeoff(runs: pd.DataFrame) -> pd.DataFrame:
     """Per trigger threshold (the stored scenario's ``eps_p``): solves saved and errors, per
     seed."""
-    key_columns = [c for c in STORED_CONFIGURATION_COLUMNS if c in runs]
-    keys = runs[key_columns].astype(str).apply(tuple, axis=1)
-    thresholds: dict[tuple, float] = {}
-    for key, row in zip(keys, runs[key_columns].to_dict("records"), strict=True):
-        if key not in thresholds:
-            scenario = stored_scenario(row)
-            thresholds[key] = math.nan if scenario is None else scenario.trigger.eps_p
-
+    thresholds = [
+        math.nan if scenario is None else scenario.trigger.eps_p
+        for scenario in stored_scenarios(runs)
+    ]
     frame = runs.assign(
-        threshold_m=keys.map(thresholds),
+        threshold_m=thresholds,
         solves_saved=1.0 - runs["solves_total"] / (runs["steps"] * uav_counts(runs)),
     )
     frame.loc[~frame["trigger"].astype(bool), "threshold_m"] = 0.0

@@ -38,7 +38,7 @@ from formation_bench.analysis.comparison import analyse, prepare
 from formation_bench.analysis.stats import SIGNIFICANCE
 from formation_bench.mpc.metrics import Better, metric_of
 from formation_bench.mpc.scenario import CommunicationGraph, Scenario
-from formation_bench.pipeline.record import STORED_CONFIGURATION_COLUMNS, stored_scenario
+from formation_bench.pipeline.record import stored_scenarios
 
 SWARM_METRICS = (
     "tracking_error_max_m",
@@ -180,15 +180,16 @@ def scenario_columns(results: pd.DataFrame) -> pd.DataFrame:
     Each run's scenario is the one its row records (:func:`~formation_bench.pipeline.record.
     stored_scenario`), not today's registry's; a row whose scenario cannot be rebuilt here
     (a plugin's class not loaded, say) leaves its columns empty, and it is in no section."""
-    key_columns = [c for c in STORED_CONFIGURATION_COLUMNS if c in results]
-    # keys as text: a missing value (NaN) is then equal to itself
-    keys = list(results[key_columns].astype(str).itertuples(index=False, name=None))
-    described = {}
-    for key, row in zip(keys, results[key_columns].to_dict("records"), strict=True):
-        if key not in described:
-            scenario = stored_scenario(row)
-            described[key] = {} if scenario is None else _describe(scenario)
-    info = pd.DataFrame([described.get(key, {}) for key in keys], index=results.index)
+    described: dict[int, dict[str, object]] = {}  # by identity: one per distinct scenario
+    rows = []
+    for scenario in stored_scenarios(results):
+        if scenario is None:
+            rows.append({})
+            continue
+        if id(scenario) not in described:
+            described[id(scenario)] = _describe(scenario)
+        rows.append(described[id(scenario)])
+    info = pd.DataFrame(rows, index=results.index)
     frame = pd.concat([results, info], axis=1)
     if "family" in frame:
         levels = (

@@ -55,16 +55,6 @@ def usage_errors() -> tuple[type[Exception], ...]:
     return (SuiteError, SweepError, StoreError, PluginError, LimitError, ExportError)
 
 
-def _jobs(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {value}")
-    return value
-
-
 def _worker_timeout(text: str) -> float:
     try:
         value = float(text)
@@ -350,7 +340,7 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
     sweep.add_argument("--out", required=True, help="results folder (created; resumed if present)")
     sweep.add_argument(
         "--jobs",
-        type=_jobs,
+        type=positive_int,
         default=DEFAULT_JOBS,
         help=f"local worker processes, one thread each (default {DEFAULT_JOBS}; at most "
         f"{JOBS_PER_CPU} per CPU)",
@@ -432,7 +422,7 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
     score.add_argument("--out", required=True, help="results folder (resumed if it exists)")
     score.add_argument(
         "--jobs",
-        type=_jobs,
+        type=positive_int,
         default=DEFAULT_JOBS,
         help=f"worker processes (default {DEFAULT_JOBS}; at most {JOBS_PER_CPU} per CPU)",
     )

@@ -58,7 +58,7 @@ from formation_bench.optimizers.population import (
     ROWS_AHEAD,
     UNIFORM_START,
     WarmStartInit,
-    initial_population,
+    evaluate_prefix,
     iteration_randoms,
     no_randoms,
     starting_points,
@@ -177,10 +177,10 @@ class AskTellOptimizer(PopulationOptimizer[Any]):
     """A population optimiser given by its kernels; the base class runs both solve loops.
 
     Subclasses (frozen dataclasses with their declared settings) define :attr:`kernels`,
-    :meth:`params`, :meth:`start`, :meth:`draw_plan` and the planning methods of
-    :class:`~formation_bench.optimizers.base.PopulationOptimizer`
-    (``evaluations_per_step``, ``default_budget``), and may define :meth:`result_info` and
-    :meth:`initialisation`.
+    :meth:`params`, :meth:`start` and :meth:`draw_plan`; the defaults of
+    :attr:`default_budget` and :meth:`evaluations_per_step` read the settings
+    ``max_iterations`` and ``population_size``. :meth:`result_info`, :meth:`initialisation`,
+    :meth:`initial_points` and :meth:`block_source` may be redefined.
     """
 
     kernels: Kernels
@@ -201,6 +201,27 @@ class AskTellOptimizer(PopulationOptimizer[Any]):
     def draw_plan(self, n: int, d: int) -> DrawPlan:
         """The random numbers of one iteration, for ``n`` members in ``d`` dimensions."""
 
+    @property
+    def default_budget(self) -> Budget:
+        """``max_iterations`` iterations, the declared setting of a population method."""
+        return Budget(max_iterations=self.max_iterations)  # type: ignore[attr-defined]
+
+    def evaluations_per_step(self) -> int:
+        """``population_size``: the batch one iteration evaluates."""
+        return int(self.population_size)  # type: ignore[attr-defined]
+
+    def initial_points(
+        self, bounds: Bounds, rng: np.random.Generator, x0: np.ndarray | None
+    ) -> np.ndarray:
+        """The initial population, not yet evaluated (:func:`~formation_bench.optimizers.
+        population.starting_points` of :meth:`population` members)."""
+        return starting_points(bounds, rng, self.population(), x0, self.initialisation())
+
+    def block_source(self, bounds: Bounds, shape: tuple[int, ...], t_max: int) -> BlockSource:
+        """Where the solve's blocks of random numbers come from: :meth:`draw_plan`'s, for an
+        initial population of ``shape``."""
+        return PlannedDraws(self.draw_plan(*shape), t_max)
+
     def initialisation(self) -> WarmStartInit:
         """How the initial population is drawn (uniform with the warm start in row 0)."""
         return self if isinstance(self, WarmStartInit) else UNIFORM_START
@@ -220,9 +241,10 @@ class AskTellOptimizer(PopulationOptimizer[Any]):
         x0: np.ndarray | None,
         max_iterations: int,
     ) -> Any:
-        points, costs = initial_population(
-            counter, bounds, rng, self.population(), x0, self.initialisation()
-        )
+        """The state after the initial population, evaluated through ``counter`` (as a solve
+        starts; for inspecting a start)."""
+        points = self.initial_points(bounds, rng, x0)
+        costs = evaluate_prefix(counter, points)
         return self.start(points, costs, rng, self.params(bounds, max_iterations))
 
     def step(
@@ -256,10 +278,10 @@ class AskTellOptimizer(PopulationOptimizer[Any]):
         t_max = self.planned_iterations(budget)
         params = self.params(bounds, t_max)
         tally = open_tally(objective, bounds.dim, budget, started, self.has_compiled_loop())
-        points = starting_points(bounds, rng, self.population(), x0, self.initialisation())
+        points = self.initial_points(bounds, rng, x0)
         costs = tally.evaluate_prefix(points)
         state = self.start(points, costs, rng, params)
-        source = PlannedDraws(self.draw_plan(*points.shape), t_max)
+        source = self.block_source(bounds, points.shape, t_max)
         state, nit, message, history = run_blocks(
             self.kernels, state, params, tally, rng, budget, source
         )

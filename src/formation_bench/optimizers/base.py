@@ -256,6 +256,30 @@ class EvaluationCounter:
         return f
 
 
+def counted_result(
+    counter: EvaluationCounter,
+    nit: int,
+    message: str,
+    history: tuple[list[int], list[float]],
+    info: dict[str, Any],
+) -> OptimizeResult:
+    """The result of a solve whose evaluations ``counter`` counted: its best point and cost,
+    counts, ``history`` (evaluations and best cost after the start and each iteration) and
+    ``info`` after the objective's time."""
+    assert counter.best_x is not None
+    return OptimizeResult(
+        x=counter.best_x,
+        fun=counter.best_f,
+        nfev=counter.nfev,
+        nit=nit,
+        success=True,
+        message=message,
+        history_nfev=np.asarray(history[0], dtype=np.int64),
+        history_fun=np.asarray(history[1]),
+        info={"objective_time_s": counter.objective_time_s, **info},
+    )
+
+
 def check_rng(rng: object) -> np.random.Generator:
     """Return ``rng`` if it is a Generator; refuse global-state or integer seeds."""
     if not isinstance(rng, np.random.Generator):
@@ -400,17 +424,8 @@ class PopulationOptimizer(Optimizer, Generic[StateT]):
         else:
             if counter.remaining <= 0:
                 message = "evaluation budget reached"
-        assert counter.best_x is not None
-        return OptimizeResult(
-            x=counter.best_x,
-            fun=counter.best_f,
-            nfev=counter.nfev,
-            nit=nit,
-            success=True,
-            message=message,
-            history_nfev=np.asarray(history_nfev, dtype=np.int64),
-            history_fun=np.asarray(history_fun),
-            info={"objective_time_s": counter.objective_time_s, **self.result_info(state)},
+        return counted_result(
+            counter, nit, message, (history_nfev, history_fun), self.result_info(state)
         )
 
     def result_info(self, state: StateT) -> dict[str, Any]:

@@ -52,7 +52,7 @@ from formation_bench.optimizers.ask_tell import (
     iterate,
     register_kernels,
 )
-from formation_bench.optimizers.base import Bounds, Budget
+from formation_bench.optimizers.base import Bounds
 from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
     BoundHandling,
@@ -243,10 +243,6 @@ class ChaoticLocalSearchBSO(WarmStartInit, LocalSearchConfig, ShiConfig, AskTell
     )
 
     kernels = Kernels(cls_ask, cls_tell, cls_iterate)
-
-    @property
-    def default_budget(self) -> Budget:
-        return Budget(max_iterations=self.max_iterations)
 
     def evaluations_per_step(self) -> int:
         return self.population_size + self.n_local

@@ -53,7 +53,6 @@ first samples only and is not learned from; the solve ends with it.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from time import perf_counter
 from typing import Any
 
 import numpy as np
@@ -66,14 +65,10 @@ from formation_bench.optimizers.ask_tell import (
     Kernels,
     iterate,
     register_kernels,
-    run_blocks,
 )
 from formation_bench.optimizers.base import (
     Bounds,
     Budget,
-    OptimizeResult,
-    check_rng,
-    check_x0,
 )
 from formation_bench.optimizers.cma_ops import (
     RUNNING,
@@ -94,7 +89,6 @@ from formation_bench.optimizers.cma_restarts import (
     first_run,
 )
 from formation_bench.optimizers.registry import register
-from formation_bench.optimizers.tallies import open_tally
 
 PER_SOLVE = ("cap", "lower", "width", "upper", "unit_lower", "unit_upper")
 """The kernel settings fixed per solve rather than per configuration, after the declared ones."""
@@ -229,10 +223,6 @@ class CMAES(CMAConfig, AskTellOptimizer):
     def initial_evaluations(self) -> int:
         return 1
 
-    def population(self) -> int:
-        """The initial population is the start alone."""
-        return 1
-
     def planned_iterations(self, budget: Budget) -> int:
         """The iteration budget if there is one, else a large number.
 
@@ -257,39 +247,23 @@ class CMAES(CMAConfig, AskTellOptimizer):
         return first_run(self, Bounds(settings.lower, settings.upper), points[0])
 
     def draw_plan(self, n: int, d: int) -> DrawPlan:
-        """Not used: lambda changes at restarts, so :class:`~.cma_restarts.CampaignDraws` draws
-        the numbers (see :mod:`.cma_restarts`)."""
+        """Not used (see :meth:`block_source`): lambda changes at restarts, so
+        :class:`~.cma_restarts.CampaignDraws` draws the numbers (see :mod:`.cma_restarts`)."""
         raise TypeError("CMA-ES draws its random numbers run by run (cma_restarts.draw)")
 
     def result_info(self, state: CMAState) -> dict[str, Any]:
         return campaign_info(state)
 
-    def minimize(
-        self,
-        objective: Any,
-        bounds: Bounds,
-        rng: np.random.Generator,
-        budget: Budget | None = None,
-        x0: np.ndarray | None = None,
-    ) -> OptimizeResult:
-        """The solve: the start (``x0``, else a uniform point) evaluated, then the runs of
-        :class:`~.cma_restarts.CampaignDraws`, in compiled code (see
-        :func:`~formation_bench.optimizers.tallies.open_tally`)."""
-        started = perf_counter()
-        rng = check_rng(rng)
-        budget = self.solve_budget(budget)
-        x0 = check_x0(x0, bounds)
-        params = self.params(bounds, self.planned_iterations(budget))
-        start = bounds.sample(rng, 1) if x0 is None else x0[None].copy()
-        tally = open_tally(objective, bounds.dim, budget, started, compiled_loop=True)
-        tally.evaluate_prefix(start)
-        state = first_run(self, bounds, start[0])
-        source = CampaignDraws(self, bounds, self.planned_iterations(budget))
-        state, nit, message, history = run_blocks(
-            self.kernels, state, params, tally, rng, budget, source
-        )
-        return tally.result(nit, message, history, self.result_info(state))
+    def initial_points(
+        self, bounds: Bounds, rng: np.random.Generator, x0: np.ndarray | None
+    ) -> np.ndarray:
+        """The start alone: ``x0``, else a uniform point of the box (drawn only then)."""
+        return bounds.sample(rng, 1) if x0 is None else x0[None].copy()
 
+    def block_source(self, bounds: Bounds, shape: tuple[int, ...], t_max: int) -> CampaignDraws:
+        """The runs' numbers and the restarts between them (:class:`~.cma_restarts.
+        CampaignDraws`)."""
+        return CampaignDraws(self, bounds, t_max)
 
 register(
     "cma-es",

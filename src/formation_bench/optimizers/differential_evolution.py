@@ -40,7 +40,7 @@ from formation_bench.optimizers.ask_tell import (
     iterate,
     register_kernels,
 )
-from formation_bench.optimizers.base import Bounds, Budget
+from formation_bench.optimizers.base import Bounds
 from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.population import WarmStartInit
 from formation_bench.optimizers.registry import register
@@ -263,13 +263,6 @@ class DifferentialEvolution(WarmStartInit, DEConfig, AskTellOptimizer):
     population's of :class:`~formation_bench.optimizers.population.WarmStartInit`."""
 
     kernels = Kernels(de_ask, de_tell, de_iterate)
-
-    @property
-    def default_budget(self) -> Budget:
-        return Budget(max_iterations=self.max_iterations)
-
-    def evaluations_per_step(self) -> int:
-        return self.population_size
 
     def params(self, bounds: Bounds, t_max: int) -> tuple:
         return pack_settings(

@@ -33,7 +33,7 @@ import numpy as np
 
 from formation_bench.fields import pack_settings
 from formation_bench.optimizers.ask_tell import AskTellOptimizer, DrawPlan, Kernels
-from formation_bench.optimizers.base import Bounds, Budget
+from formation_bench.optimizers.base import Bounds
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
@@ -87,10 +87,6 @@ class ModifiedBSO(WarmStartInit, ModifiedBSOConfig, AskTellOptimizer):
         if self.clustering is ClusteringBackend.SKLEARN:
             return Kernels(sklearn_ask, modified_bso_tell, None)
         return Kernels(modified_bso_ask, modified_bso_tell, modified_bso_iterate)
-
-    @property
-    def default_budget(self) -> Budget:
-        return Budget(max_iterations=self.max_iterations)
 
     def evaluations_per_step(self) -> int:
         """N, plus the expected replacement evaluations ``round(p_r * n_r)`` when enabled.

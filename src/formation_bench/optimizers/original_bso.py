@@ -64,7 +64,7 @@ from typing import Any
 import numpy as np
 
 from formation_bench.optimizers.ask_tell import AskTellOptimizer, DrawPlan, Kernels
-from formation_bench.optimizers.base import Bounds, Budget
+from formation_bench.optimizers.base import Bounds
 from formation_bench.optimizers.original_bso_kernels import (
     BSOState,
     ShiConfig,
@@ -87,13 +87,6 @@ class OriginalBSO(WarmStartInit, ShiConfig, AskTellOptimizer):
     """
 
     kernels = Kernels(shi_ask, shi_tell, shi_iterate)
-
-    @property
-    def default_budget(self) -> Budget:
-        return Budget(max_iterations=self.max_iterations)
-
-    def evaluations_per_step(self) -> int:
-        return self.population_size
 
     def params(self, bounds: Bounds, t_max: int) -> tuple:
         return self.shi_settings(bounds, t_max)

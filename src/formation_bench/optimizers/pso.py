@@ -53,7 +53,7 @@ from formation_bench.optimizers.ask_tell import (
     iterate,
     register_kernels,
 )
-from formation_bench.optimizers.base import Bounds, Budget
+from formation_bench.optimizers.base import Bounds
 from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.chaos import ChaoticMap, apply_map, step_inplace
 from formation_bench.optimizers.population import WarmStartInit, greedy_select, progress
@@ -276,13 +276,6 @@ class PSO(WarmStartInit, PSOConfig, AskTellOptimizer):
     :class:`~formation_bench.optimizers.population.WarmStartInit` for the initial swarm."""
 
     kernels = Kernels(pso_ask, pso_tell, pso_iterate)
-
-    @property
-    def default_budget(self) -> Budget:
-        return Budget(max_iterations=self.max_iterations)
-
-    def evaluations_per_step(self) -> int:
-        return self.population_size
 
     def params(self, bounds: Bounds, t_max: int) -> tuple:
         return pack_settings(

@@ -29,7 +29,7 @@ from formation_bench.optimizers.ask_tell import (
     iterate,
     register_kernels,
 )
-from formation_bench.optimizers.base import Bounds, Budget
+from formation_bench.optimizers.base import Bounds
 from formation_bench.optimizers.registry import register
 
 PER_SOLVE = ("lower", "width")
@@ -97,13 +97,6 @@ class RandomSearch(RandomSearchConfig, AskTellOptimizer):
     """Uniform samples in the box, batch-evaluated; see the module docstring."""
 
     kernels = Kernels(random_search_ask, random_search_tell, random_search_iterate)
-
-    @property
-    def default_budget(self) -> Budget:
-        return Budget(max_iterations=self.max_iterations)
-
-    def evaluations_per_step(self) -> int:
-        return self.population_size
 
     def params(self, bounds: Bounds, t_max: int) -> tuple:
         return pack_settings(

@@ -27,7 +27,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from formation_bench.optimizers.base import Budget, EvaluationCounter, OptimizeResult
+from formation_bench.optimizers.base import (
+    Budget,
+    EvaluationCounter,
+    OptimizeResult,
+    counted_result,
+)
 from formation_bench.optimizers.compiled import (
     LIMIT,
     NFEV,
@@ -208,19 +213,7 @@ class CounterTally(Tally):
         return iterate_python(kernels, state, params, self.counter, draws, nit)
 
     def result(self, nit: int, message: str, history: History, info: dict) -> OptimizeResult:
-        counter = self.counter
-        assert counter.best_x is not None
-        return OptimizeResult(
-            x=counter.best_x,
-            fun=counter.best_f,
-            nfev=counter.nfev,
-            nit=nit,
-            success=True,
-            message=message,
-            history_nfev=np.asarray(history[0], dtype=np.int64),
-            history_fun=np.asarray(history[1]),
-            info={"objective_time_s": counter.objective_time_s, **info},
-        )
+        return counted_result(self.counter, nit, message, history, info)
 
 
 def iterate_python(

@@ -26,7 +26,7 @@ import typing
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from types import NoneType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from formation_bench.mpc.metrics import MetricInfo, Metrics, Per, metric_infos, metric_of
 from formation_bench.mpc.scenario import Scenario, get_scenario
@@ -43,6 +43,9 @@ from formation_bench.pipeline.spec import (
     resolved_config_hash,
     solve_budget,
 )
+
+if TYPE_CHECKING:  # the run pipeline itself writes no data frames
+    import pandas as pd
 
 RECORD_FORMAT = 4
 """What the record's columns mean, as a number. Bumped only when a column changes meaning: a
@@ -279,6 +282,19 @@ STORED_CONFIGURATION_COLUMNS = (
     "budget_deadline_ms",
 )
 """The columns of a stored row that :func:`stored_configuration` reads."""
+
+
+def stored_scenarios(rows: pd.DataFrame) -> list[Scenario | None]:
+    """:func:`stored_scenario` of every row of ``rows`` (stored runs), each distinct stored
+    configuration rebuilt once."""
+    columns = [c for c in STORED_CONFIGURATION_COLUMNS if c in rows]
+    # keys as text: a missing value (NaN) is then equal to itself
+    keys = list(rows[columns].astype(str).itertuples(index=False, name=None))
+    rebuilt: dict[tuple, Scenario | None] = {}
+    for key, row in zip(keys, rows[columns].to_dict("records"), strict=True):
+        if key not in rebuilt:
+            rebuilt[key] = stored_scenario(row)
+    return [rebuilt[key] for key in keys]
 
 
 def stored_scenario(row: Mapping[str, Any]) -> Scenario | None:
