@@ -146,9 +146,7 @@ def scenario_for(n_uav: int, graph: CommunicationGraph) -> tuple[str, Scenario]:
     if scenario.n_uav != n_uav:
         raise ValueError(f"scenario {name!r} has {scenario.n_uav} UAVs, not {n_uav}")
     return name, (
-        scenario
-        if graph == scenario.communication.graph
-        else scenario.with_overrides(graph=graph)
+        scenario if graph == scenario.communication.graph else scenario.with_overrides(graph=graph)
     )
 
 

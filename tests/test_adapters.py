@@ -61,8 +61,6 @@ def rosenbrock(x: np.ndarray) -> np.ndarray:
     return np.sum(100.0 * (x[:, 1:] - x[:, :-1] ** 2) ** 2 + (1.0 - x[:, :-1]) ** 2, axis=1)
 
 
-
-
 @pytest.mark.parametrize("name", NAMES)
 @pytest.mark.parametrize("evaluations", [1, 13, 100, 1001])
 def test_spends_exactly_the_evaluation_budget(name: str, evaluations: int) -> None:

@@ -109,7 +109,7 @@ def test_a_transform_generation_evaluates_the_mapped_samples_and_learns_the_samp
 @pytest.mark.parametrize("where", [0.0, 0.01, 0.5, 0.97, 1.0])
 def test_the_first_mean_is_the_inverse_image_of_the_start(where: float) -> None:
     x0 = BOX.lower + where * BOX.width
-    state = first_run(CMAES(bound_handling=TRANSFORM), BOX, x0)
+    state = first_run(CMAES(bound_handling=TRANSFORM), BOX.lower, BOX.width, x0)
     mean = state.run.distribution.mean
     np.testing.assert_allclose(linquad_transform(mean[None], np.zeros(D), np.ones(D))[0], where)
     if where == 0.0:  # the bottom of the parabola, a margin beyond the face

@@ -37,8 +37,6 @@ SEEDS = range(20)
 sphere = shifted_sphere(CENTRE)
 
 
-
-
 def ellipsoid(x: np.ndarray) -> np.ndarray:
     return ((x - CENTRE) ** 2 * 10.0 ** (6.0 * np.arange(D) / (D - 1))).sum(axis=1)
 

@@ -33,8 +33,6 @@ MISSING = OPTIMIZERS.missing()
 """Optional optimisers (the adapters) whose library is not installed here, and why."""
 
 
-
-
 def black_box(name: str) -> PopulationOptimizer:
     optimizer = get_optimizer(name)
     if not isinstance(optimizer, PopulationOptimizer):

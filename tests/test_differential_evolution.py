@@ -33,7 +33,7 @@ from formation_bench.optimizers.differential_evolution import (
     de_ask,
     de_tell,
     mutant_into,
-    partners_into,
+    partners_of,
     redraws_of,
 )
 from formation_bench.optimizers.population import WarmStartInit
@@ -106,14 +106,13 @@ def test_partners_cover_every_ordered_choice_once_and_never_the_member() -> None
     seen = []
     for a, b, c in itertools.product(range(5), range(4), range(3)):
         u = np.array([(a + 0.5) / 5, (b + 0.5) / 4, (c + 0.5) / 3])
-        out = np.empty(3, dtype=np.int64)
-        partners_into(i, n, u, out, np.empty(4, dtype=np.int64))
+        out = partners_of(i, n, u, 3)
         assert list(out) == partners_by_hand(i, n, list(u))
+        assert partners_of(i, n, u, 2) == (*out[:2], -1)  # current-to-best/1 draws two
         seen.append(tuple(out))
     others = [k for k in range(n) if k != i]
     assert sorted(seen) == sorted(itertools.permutations(others, 3))
-    edge = np.empty(3, dtype=np.int64)
-    partners_into(5, n, np.array([1.0 - 1e-17, 1.0, 1.0]), edge, np.empty(4, dtype=np.int64))
+    edge = partners_of(5, n, np.array([1.0 - 1e-17, 1.0, 1.0]), 3)
     # u = 1 stays in range
     assert sorted(edge) == [2, 3, 4]
 
@@ -251,7 +250,7 @@ def test_the_kernels_read_exactly_their_declared_settings_by_name() -> None:
 
 
 def test_no_kernel_takes_more_than_eight_positional_arguments() -> None:
-    for kernel in (de_ask, de_tell, mutant_into, partners_into, redraws_of):
+    for kernel in (de_ask, de_tell, mutant_into, partners_of, redraws_of):
         assert len(inspect.signature(kernel.py_func).parameters) <= 8, kernel
 
 

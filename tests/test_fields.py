@@ -220,9 +220,7 @@ def registry_changes(recorded: dict, now: dict, missing: set[str]) -> tuple[list
     """``(added, changed)``: names (and classes) new since the record, and every difference
     from it, each as a line saying what differs. Names in ``missing`` (adapters whose library
     is not installed) and classes only they use are not expected."""
-    expected_classes = {
-        v["class"] for k, v in recorded["optimizers"].items() if k not in missing
-    }
+    expected_classes = {v["class"] for k, v in recorded["optimizers"].items() if k not in missing}
     added, changed = [], []
     for section in ("optimizers", "class_defaults"):
         old, new = recorded[section], now[section]

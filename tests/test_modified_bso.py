@@ -39,8 +39,6 @@ VARIANTS = [
 ]
 
 
-
-
 def shifted_rastrigin(x: np.ndarray) -> np.ndarray:
     z = x - SHIFT
     return 10.0 * z.shape[1] + (z * z - 10.0 * np.cos(2.0 * np.pi * z)).sum(axis=1)

@@ -13,8 +13,6 @@ D = 4
 BOX = Bounds(np.array([-1.0, 0.0, 2.0, -0.25]), np.array([1.0, 5.0, 3.0, 0.25]))
 
 
-
-
 def test_batches_are_uniform_in_the_box_with_the_warm_start_first() -> None:
     rec = Recorder()
     x0 = np.array([0.5, 1.0, 2.5, 0.0])

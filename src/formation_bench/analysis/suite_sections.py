@@ -94,12 +94,14 @@ FAMILIES = (
     ),
     Family(
         "noise",
-        lambda s: max(
-            s.disturbances.position_noise_std_m,
-            s.disturbances.heading_noise_std_rad,
-            s.disturbances.speed_noise_std_m_s,
-        )
-        > 0,
+        lambda s: (
+            max(
+                s.disturbances.position_noise_std_m,
+                s.disturbances.heading_noise_std_rad,
+                s.disturbances.speed_noise_std_m_s,
+            )
+            > 0
+        ),
         lambda s: (
             s.disturbances.position_noise_std_m,
             s.disturbances.heading_noise_std_rad,

@@ -306,9 +306,7 @@ class _Validator:
     def budgets(self) -> tuple[Budget | None, ...]:
         return self.budget_list(("budgets",), self.data.get("budgets", ["default"]))
 
-    def budget_list(
-        self, where_list: tuple[Any, ...], budgets: Any
-    ) -> tuple[Budget | None, ...]:
+    def budget_list(self, where_list: tuple[Any, ...], budgets: Any) -> tuple[Budget | None, ...]:
         if not isinstance(budgets, list) or not budgets:
             raise self.fail(
                 where_list,

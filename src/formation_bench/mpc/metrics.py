@@ -123,9 +123,9 @@ def settling_index(trace: Trace, tracking: np.ndarray, errors: np.ndarray) -> in
     scenario = trace.scenario
     desired = scenario.desired_distances()
     inside = tracking <= scenario.evaluation.settling_tracking_band_m
-    outside_band = (
-        errors > scenario.evaluation.settling_distance_band * desired
-    ) & graph_pairs(trace)
+    outside_band = (errors > scenario.evaluation.settling_distance_band * desired) & graph_pairs(
+        trace
+    )
     inside &= ~outside_band.any(axis=(1, 2))
     outside = np.flatnonzero(~inside)
     if outside.size == 0:

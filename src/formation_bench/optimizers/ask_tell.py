@@ -3,7 +3,8 @@
 An optimiser of this kind (:class:`AskTellOptimizer`) supplies
 
 * its **state**, a :class:`typing.NamedTuple` of arrays and numbers (numba compiles a
-  NamedTuple into a struct, and a kernel returns a new one);
+  NamedTuple into a struct, and a kernel returns the next one; it may write into arrays that
+  the block owns, as CMA-ES does after copying its run once per block);
 * its **params**, the tuple of settings its kernels read, built once per solve from its
   declared fields (:meth:`AskTellOptimizer.params`);
 * two compiled **kernels** (``@njit(cache=True)``):

@@ -74,12 +74,12 @@ from formation_bench.optimizers.cma_ops import (
     RUNNING,
     CMABoundHandling,
     CMAConstants,
-    CMARun,
-    Samples,
     default_population_size,
     injection_cap,
     learn,
+    owned,
     sample,
+    told,
 )
 from formation_bench.optimizers.cma_restarts import (
     CampaignDraws,
@@ -153,43 +153,39 @@ CMASettings = kernel_settings_class(
 @njit(cache=True, inline="always")
 def cma_ask(state, params, uniforms, normals, iteration, remaining):  # type: ignore[no-untyped-def]
     """Learn from the told generation (if any), then sample the next from ``normals`` (and,
-    with RESAMPLE, ``uniforms``), both ``(lambda, n)``.
+    with RESAMPLE, ``uniforms``), both ``(lambda, n)``, advancing the run's arrays in place
+    (:func:`cma_iterate` gives a block its own copy).
 
     The update waits for the next generation so that a solve's last generation, which no
     generation follows, is not learned from, and a run is checked for a stop only when
     budget is left to restart it. A run that stops samples nothing (0 candidates) and keeps
     doing so: the solve loop restarts it (:class:`~.cma_restarts.CampaignDraws`).
     """
+    # one return and no early ones: each exit would count references to all the state's arrays
     run = state.run
-    if run.progress.stop != RUNNING:
-        return state, np.empty((0, run.distribution.mean.shape[0])), True
     s = CMASettings(*params)
-    if run.samples.costs.shape[0] > 0:
+    if run.progress.stop == RUNNING and told(run.samples):
         run = learn(run, s, state.plan, iteration)
-        if run.progress.stop != RUNNING:
-            nothing = np.empty((0, run.distribution.mean.shape[0]))
-            return CMAState(run, state.plan, state.campaign), nothing, True
-    samples = sample(run.distribution, normals, uniforms, s)
-    run = CMARun(run.distribution, samples, run.progress, run.strategy)
-    return CMAState(run, state.plan, state.campaign), samples.points, True
+    if run.progress.stop == RUNNING:
+        sample(run.distribution, normals, uniforms, s, run.samples)
+        candidates = run.samples.points
+    else:
+        candidates = np.empty((0, run.distribution.mean.shape[0]))
+    return CMAState(run, state.plan, state.campaign), candidates, True
 
 
 @njit(cache=True, inline="always")
 def cma_tell(state, params, candidates, costs, iteration):  # type: ignore[no-untyped-def]
     """Keep the candidates' costs for the next :func:`cma_ask` (+inf for rows the budget left
-    unevaluated)."""
-    lam = candidates.shape[0]
-    if lam == 0:
-        return state
-    told = costs  # a new array every round: kept, not copied
-    if costs.shape[0] < lam:
-        told = np.full(lam, np.inf)
-        told[: costs.shape[0]] = costs
-    run = state.run
-    s = run.samples
-    run = CMARun(run.distribution, Samples(s.points, s.steps, s.lengths, told), run.progress,
-                 run.strategy)  # fmt: skip
-    return CMAState(run, state.plan, state.campaign)
+    unevaluated), in the cost array :func:`~.cma_ops.sample` made for this generation: the
+    state keeps its parts (rebuilding it would count references to all of its arrays)."""
+    # no early return for a stopped run's 0 candidates: the loops do nothing then
+    told = state.run.samples.costs
+    for r in range(costs.shape[0]):
+        told[r] = costs[r]
+    for r in range(costs.shape[0], candidates.shape[0]):
+        told[r] = np.inf
+    return state
 
 
 register_kernels(CMAState, cma_ask, cma_tell)
@@ -197,7 +193,9 @@ register_kernels(CMAState, cma_ask, cma_tell)
 
 @njit(cache=True)
 def cma_iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def]
-    """:func:`~formation_bench.optimizers.ask_tell.iterate` with the CMA-ES kernels."""
+    """:func:`~formation_bench.optimizers.ask_tell.iterate` with the CMA-ES kernels, on a copy
+    of the run that the block then advances in place (:func:`~.cma_ops.owned`)."""
+    state = CMAState(owned(state.run), state.plan, state.campaign)
     return iterate(state, params, block, nit, rows)
 
 
@@ -244,7 +242,7 @@ class CMAES(CMAConfig, AskTellOptimizer):
     ) -> CMAState:
         """The first run, centred on the evaluated ``points[0]``."""
         settings = CMASettings(*params)
-        return first_run(self, Bounds(settings.lower, settings.upper), points[0])
+        return first_run(self, settings.lower, settings.width, points[0])
 
     def draw_plan(self, n: int, d: int) -> DrawPlan:
         """Not used (see :meth:`block_source`): lambda changes at restarts, so
@@ -264,6 +262,7 @@ class CMAES(CMAConfig, AskTellOptimizer):
         """The runs' numbers and the restarts between them (:class:`~.cma_restarts.
         CampaignDraws`)."""
         return CampaignDraws(self, bounds, t_max)
+
 
 register(
     "cma-es",

@@ -15,8 +15,12 @@ resample) or by pycma's BoundTransform (:mod:`.cma_transform`).
 A run is a :class:`CMARun` of named parts: its :class:`Distribution` (mean, sigma, C, its
 eigensystem B and D, C^(-1/2), the paths), its last :class:`Samples`, its
 :class:`Progress` (counters, TolFun history, why it stopped) and its constant
-:class:`CMAParameters`. Every random number comes in as an array and inputs are never
-modified: :func:`learn` and :func:`sample` return new parts.
+:class:`CMAParameters`, and its :class:`Workspace`. Every random number comes in as an array.
+:func:`learn` and :func:`sample` advance a run's arrays in place (its scalars, such as sigma
+and the counters, come back in new parts): a block of generations copies its run once
+(:func:`owned`) and then allocates nothing per generation but the costs of its evaluations.
+Rebuilding every array of a run each generation, as a purely functional update would, made a
+solve some 10 % slower than writing the same arithmetic in place.
 
 **Eigendecomposition.** Refreshed lazily, when more than
 ``0.5 lambda / (n (c_1 + c_mu))`` evaluations passed since the last one (the
@@ -255,8 +259,9 @@ class Samples(NamedTuple):
     lengths: np.ndarray
     """Squared Mahalanobis lengths ``||C^(-1/2) y||^2`` of the steps, shape (lambda,)."""
     costs: np.ndarray
-    """The points' costs (+inf where the budget left one unevaluated); empty until told, and
-    again once learned from."""
+    """The points' costs (+inf where the budget left one unevaluated): NaN until
+    :func:`~.cma_es.cma_tell` writes them into this array, made for them by :func:`sample`;
+    empty before the first generation and once learned from."""
 
 
 class Progress(NamedTuple):
@@ -276,14 +281,38 @@ class Progress(NamedTuple):
     """The iteration whose update stopped the run (not done: it samples nothing), else 0."""
 
 
+class Workspace(NamedTuple):
+    """Scratch of a run's update, kept between generations so that none allocates. Two arrays
+    rather than one per use: every array of a run's state costs reference counting each
+    time a kernel hands the state on."""
+
+    order: np.ndarray
+    """The ranking of the last generation, best first, shape (lambda,) of integers."""
+    floats: np.ndarray
+    """``<y>_w`` (n), the rank-mu weights times ``c_mu`` (lambda), C scaled for the
+    eigendecomposition (n^2), its eigenvalues (n) and the eigensolver's scratch (n): see
+    :func:`scratch_of`."""
+
+
+@njit(cache=True, inline="always")
+def scratch_of(work, n, lam):  # type: ignore[no-untyped-def]
+    """The views of ``work.floats``: ``(y_w, scaled, matrix, values, eigen_work)``."""
+    f = work.floats
+    y_w, scaled = f[:n], f[n : n + lam]
+    matrix = f[n + lam : n + lam + n * n].reshape(n, n)
+    values = f[n + lam + n * n : 2 * n + lam + n * n]
+    return y_w, scaled, matrix, values, f[2 * n + lam + n * n :]
+
+
 class CMARun(NamedTuple):
-    """One run between generations (parts are replaced, never modified)."""
+    """One run between generations: its arrays are advanced in place, its scalars replaced."""
 
     distribution: Distribution
     samples: Samples
     progress: Progress
     strategy: CMAParameters
     """The run's strategy constants (they depend on its lambda)."""
+    work: Workspace
 
 
 def new_run(mean: np.ndarray, sigma0: float, strategy: CMAParameters, transform: bool) -> CMARun:
@@ -300,19 +329,40 @@ def new_run(mean: np.ndarray, sigma0: float, strategy: CMAParameters, transform:
         np.array(mean, dtype=np.float64), float(sigma0), eye.copy(), eye.copy(), np.ones(n),
         eye.copy(), np.zeros(n), np.zeros(n),
     )  # fmt: skip
-    samples = Samples(np.zeros((lam, n)), np.zeros((lam, n)), np.zeros(lam), np.empty(0))
+    samples = Samples(np.zeros((lam, n)), np.zeros((lam, n)), np.zeros(lam), np.full(lam, np.nan))
     progress = Progress(0, 0, 0, np.full(strategy.history, np.nan), RUNNING, 0)
-    return CMARun(distribution, samples, progress, strategy)
+    work = Workspace(np.zeros(lam, dtype=np.int64), np.zeros(3 * n + lam + n * n))
+    return CMARun(distribution, samples, progress, strategy, work)
+
+
+@njit(cache=True)
+def owned(run):  # type: ignore[no-untyped-def]
+    """A copy of ``run`` whose arrays :func:`learn` and :func:`sample` may advance in place
+    (its constants and scratch are shared)."""
+    d, s, p = run.distribution, run.samples, run.progress
+    distribution = Distribution(d.mean.copy(), d.sigma, d.cov.copy(), d.eigenvectors.copy(),
+                                d.axes.copy(), d.inv_sqrt.copy(), d.path_sigma.copy(),
+                                d.path_c.copy())  # fmt: skip
+    samples = Samples(s.points.copy(), s.steps.copy(), s.lengths.copy(), s.costs.copy())
+    progress = Progress(p.generation, p.run_evaluations, p.eigen_evaluations, p.history.copy(),
+                        p.stop, p.stopped_at)  # fmt: skip
+    return CMARun(distribution, samples, progress, run.strategy, run.work)
+
+
+@njit(cache=True, inline="always")
+def told(samples):  # type: ignore[no-untyped-def]
+    """Whether ``samples`` have costs not yet learned from (a cost is never NaN once told)."""
+    return not math.isnan(samples.costs[0])
 
 
 # --- the update ---------------------------------------------------------------------------------
 
 
 @njit(cache=True)
-def ranking(costs: np.ndarray) -> np.ndarray:
-    """Indices of ``costs`` from best to worst, ties in index order (insertion sort: small)."""
+def ranking(costs: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Indices of ``costs`` from best to worst into ``order``, ties in index order (insertion
+    sort: small)."""
     m = costs.shape[0]
-    order = np.empty(m, dtype=np.int64)
     for k in range(m):
         v = costs[k]
         j = k
@@ -329,25 +379,30 @@ def learn(run, settings, plan, iteration):  # type: ignore[no-untyped-def]
     the eigendecomposition when it is due, the TolFun history and the stop check
     (:func:`stop_code`, with the initial step size and evaluation allowance of ``plan``).
 
-    ``settings`` are the kernel settings of :mod:`.cma_es`; the returned run's samples have no
-    costs (they are learned from). A run that stops records ``iteration`` as ``stopped_at``.
+    ``settings`` are the kernel settings of :mod:`.cma_es`. The run's arrays are advanced in
+    place (see the module docstring); its samples are marked learned from (:func:`told`). A
+    run that stops records ``iteration`` as ``stopped_at``.
     """
-    samples, progress, strategy = run.samples, run.progress, run.strategy
+    samples, progress, strategy, work = run.samples, run.progress, run.strategy, run.work
     costs = samples.costs
     lam = costs.shape[0]
-    order = ranking(costs)
-    distribution = update_distribution(
+    order = ranking(costs, work.order)
+    sigma = update_distribution(
         run.distribution, strategy, samples, order, progress.generation,
-        settings.constants == CMAConstants.PYCMA,
+        settings.constants == CMAConstants.PYCMA, work,
     )  # fmt: skip
-    history = np.empty_like(progress.history)
-    history[1:] = progress.history[:-1]
+    d = run.distribution
+    distribution = Distribution(d.mean, sigma, d.cov, d.eigenvectors, d.axes, d.inv_sqrt,
+                                d.path_sigma, d.path_c)  # fmt: skip
+    history = progress.history
+    for k in range(history.shape[0] - 1, 0, -1):
+        history[k] = history[k - 1]
     history[0] = costs[order[0]]
     run_evaluations = progress.run_evaluations + lam
     eigen_evaluations = progress.eigen_evaluations
     condition = 1.0
     if run_evaluations - eigen_evaluations > strategy.eigen_gap:
-        distribution, condition = refreshed(distribution)
+        condition = refresh(distribution, work)
         eigen_evaluations = run_evaluations
     progress = Progress(progress.generation + 1, run_evaluations, eigen_evaluations, history,
                         RUNNING, 0)  # fmt: skip
@@ -355,14 +410,14 @@ def learn(run, settings, plan, iteration):  # type: ignore[no-untyped-def]
     if stop != RUNNING:
         progress = Progress(progress.generation, run_evaluations, eigen_evaluations, history,
                             stop, iteration)  # fmt: skip
-    learned = Samples(samples.points, samples.steps, samples.lengths, costs[:0])
-    return CMARun(distribution, learned, progress, strategy)
+    costs[0] = math.nan  # learned from
+    return CMARun(distribution, samples, progress, strategy, work)
 
 
 @njit(cache=True, inline="always")
-def update_distribution(distribution, strategy, samples, order, generation, pycma_test):  # type: ignore[no-untyped-def]
-    """The tutorial's update (Fig. 6, c_m = 1) of mean, paths, sigma and C: a new
-    :class:`Distribution` (its eigensystem still the old one).
+def update_distribution(distribution, strategy, samples, order, generation, pycma_test, work):  # type: ignore[no-untyped-def]
+    """The tutorial's update (Fig. 6, c_m = 1) of mean, paths and C, in place, and the new
+    sigma (returned; the eigensystem is still the old one).
 
     ``<y>_w`` comes from the mu best steps (``order`` ranks the samples, best first);
     cumulative step-size adaptation with ``C^(-1/2)`` of the last eigendecomposition;
@@ -370,7 +425,7 @@ def update_distribution(distribution, strategy, samples, order, generation, pycm
     ``||p_sigma|| / sqrt(1 - (1 - c_sigma)^(2(g+1))) < (1.4 + 2 / (n + 1)) E||N(0, I)||`` or,
     with ``pycma_test``, pycma's ``||p_sigma||^2 / (1 - (1 - c_sigma)^(2(g+1))) / n - 1 < 1 +
     4 / (n + 1)``); the rank-one and rank-mu updates of C, a negative weight scaled by ``n /
-    ||C^(-1/2) y||^2``.
+    ||C^(-1/2) y||^2``. ``work`` is the run's :class:`Workspace`.
     """
     steps, lengths = samples.steps, samples.lengths
     s = strategy
@@ -379,27 +434,18 @@ def update_distribution(distribution, strategy, samples, order, generation, pycm
     sigma = distribution.sigma
     inv_sqrt = distribution.inv_sqrt
     c_sigma, c_c, c_1, c_mu = s.c_sigma, s.c_c, s.c_1, s.c_mu
+    y_w, scaled, _, _, _ = scratch_of(work, n, lam)
+    d = distribution
+    mean, ps, pc, cov = d.mean, d.path_sigma, d.path_c, d.cov
 
-    # one allocation for the work arrays and the new parts: a small one costs about as
-    # much as the arithmetic of a short loop
-    flat = np.empty(4 * n + lam + n * n)
-    y_w, scaled = flat[:n], flat[n : n + lam]
-    mean, ps, pc = (
-        flat[n + lam : 2 * n + lam],
-        flat[2 * n + lam : 3 * n + lam],
-        flat[3 * n + lam : 4 * n + lam],
-    )
-    cov = flat[4 * n + lam :].reshape(n, n)
     y_w[:] = 0.0
     for r in range(s.mu):
         k = order[r]
         for i in range(n):
             y_w[i] += weights[r] * steps[k, i]
-    mean[:] = distribution.mean
     for i in range(n):
         mean[i] += sigma * y_w[i]
 
-    ps[:] = distribution.path_sigma
     ps_factor = math.sqrt(c_sigma * (2.0 - c_sigma) * s.mueff)
     ps_norm2 = 0.0
     for i in range(n):
@@ -417,7 +463,6 @@ def update_distribution(distribution, strategy, samples, order, generation, pycm
     else:
         short = ps_norm / math.sqrt(bias) < (1.4 + 2.0 / (n + 1.0)) * s.chi_n
     h_sigma = 1.0 if short else 0.0
-    pc[:] = distribution.path_c
     pc_factor = h_sigma * math.sqrt(c_c * (2.0 - c_c) * s.mueff)
     for i in range(n):
         pc[i] = (1.0 - c_c) * pc[i] + pc_factor * y_w[i]
@@ -434,19 +479,17 @@ def update_distribution(distribution, strategy, samples, order, generation, pycm
         scaled[r] = c_mu * w
     delta_h = (1.0 - h_sigma) * c_c * (2.0 - c_c)
     decay = 1.0 + c_1 * delta_h - c_1 - c_mu * weight_sum
-    old = distribution.cov
+    # in place: entry (i, j >= i) reads only itself, and the mirrored (j, i) is never read
     for i in range(n):
         for j in range(i, n):
-            value = decay * old[i, j] + c_1 * pc[i] * pc[j]
+            value = decay * cov[i, j] + c_1 * pc[i] * pc[j]
             for r in range(lam):
                 y = steps[order[r]]
                 value += scaled[r] * y[i] * y[j]
             cov[i, j] = value
             cov[j, i] = value
 
-    sigma = sigma * math.exp((c_sigma / s.d_sigma) * (ps_norm / s.chi_n - 1.0))
-    d = distribution
-    return Distribution(mean, sigma, cov, d.eigenvectors, d.axes, d.inv_sqrt, ps, pc)
+    return sigma * math.exp((c_sigma / s.d_sigma) * (ps_norm / s.chi_n - 1.0))
 
 
 @njit(cache=True)
@@ -463,14 +506,15 @@ def mahalanobis(inv_sqrt: np.ndarray, y: np.ndarray) -> float:
 
 
 @njit(cache=True, inline="always")
-def refreshed(distribution):  # type: ignore[no-untyped-def]
-    """``(distribution, cond(C))``: ``distribution`` with B, D and C^(-1/2) of its C.
+def refresh(distribution, work):  # type: ignore[no-untyped-def]
+    """B, D and C^(-1/2) of ``distribution``'s C, written into its arrays; returns cond(C).
 
     C is scaled by its largest diagonal entry first, so that no square in the QL iteration
     (:func:`~.cma_eigen.eigen_into`) overflows or underflows. Eigenvalues are floored at
     1e-20 times the largest, so a rounding error cannot make an axis length imaginary; the
     condition is taken before the floor. When C is not finite or its diagonal not positive,
-    the eigensystem is kept and the condition is ``inf`` (which stops the run).
+    the eigensystem is kept and the condition is ``inf`` (which stops the run). ``work`` is
+    the run's :class:`Workspace`.
     """
     d = distribution
     cov = d.cov
@@ -479,23 +523,17 @@ def refreshed(distribution):  # type: ignore[no-untyped-def]
     for i in range(n):
         scale = max(scale, cov[i, i])
     if not (scale > 0.0 and math.isfinite(scale)):
-        return distribution, math.inf
+        return math.inf
     for i in range(n):
         for j in range(n):
             if not math.isfinite(cov[i, j]):
-                return distribution, math.inf
-    # one allocation for the work arrays and the new parts: a small one costs about as
-    # much as the arithmetic of a short loop
-    flat = np.empty(3 * n * n + 3 * n)
-    matrix = flat[: n * n].reshape(n, n)
-    rows = flat[n * n : 2 * n * n].reshape(n, n)
-    inv_sqrt = flat[2 * n * n : 3 * n * n].reshape(n, n)
-    values = flat[3 * n * n : 3 * n * n + n]
-    axes = flat[3 * n * n + n : 3 * n * n + 2 * n]
+                return math.inf
+    _, _, matrix, values, eigen_work = scratch_of(work, n, work.order.shape[0])
+    rows, axes, inv_sqrt = d.eigenvectors, d.axes, d.inv_sqrt
     for i in range(n):
         for j in range(n):
             matrix[i, j] = cov[i, j] / scale
-    eigen_into(matrix, values, flat[3 * n * n + 2 * n :], rows)
+    eigen_into(matrix, values, eigen_work, rows)
     largest, smallest = -math.inf, math.inf
     for k in range(n):
         largest = max(largest, values[k])
@@ -511,8 +549,7 @@ def refreshed(distribution):  # type: ignore[no-untyped-def]
             a = rows[k, i] * scale_k
             for j in range(n):
                 inv_sqrt[i, j] += a * rows[k, j]
-    return Distribution(d.mean, d.sigma, cov, rows, axes, inv_sqrt, d.path_sigma,
-                        d.path_c), condition  # fmt: skip
+    return condition
 
 
 @njit(cache=True, inline="always")
@@ -580,9 +617,9 @@ def stop_code(distribution, progress, costs, condition, settings, plan):  # type
 
 
 @njit(cache=True, inline="always")
-def sample(distribution, normals, uniforms, settings):  # type: ignore[no-untyped-def]
-    """lambda samples ``m + sigma B (D * z)``, ``z`` the rows of ``normals`` (lambda x n):
-    the :class:`Samples` (no costs yet) with their points in box coordinates.
+def sample(distribution, normals, uniforms, settings, samples):  # type: ignore[no-untyped-def]
+    """lambda samples ``m + sigma B (D * z)``, ``z`` the rows of ``normals`` (lambda x n),
+    written into ``samples`` (costs NaN until told), their points in box coordinates.
 
     The ``bound_handling`` of ``settings`` (a :class:`CMABoundHandling` value) brings the
     samples into [0, 1]^n: a repair of those outside (``uniforms``, shaped like ``normals``,
@@ -597,11 +634,8 @@ def sample(distribution, normals, uniforms, settings):  # type: ignore[no-untype
     d = distribution
     mean, axes, rows, sigma = d.mean, d.axes, d.eigenvectors, d.sigma
     lam, n = normals.shape
-    # one allocation for all the parts (see update_distribution)
-    flat = np.empty(lam * (2 * n + 1))
-    steps = flat[: lam * n].reshape(lam, n)
-    points = flat[lam * n : 2 * lam * n].reshape(lam, n)
-    lengths = flat[2 * lam * n :]
+    steps, points, lengths, costs = samples.steps, samples.points, samples.lengths, samples.costs
+    costs[:] = math.nan
     steps[:] = 0.0
     # ||C^(-1/2) y|| = ||B D^(-1) B^T B D z|| = ||z||: the update's next C^(-1/2) is the one
     # of this B and D (the eigensystem is refreshed only after an update), so a sampled
@@ -643,4 +677,4 @@ def sample(distribution, normals, uniforms, settings):  # type: ignore[no-untype
     for s in range(lam):
         for i in range(n):
             points[s, i] = min(max(lower[i] + width[i] * points[s, i], lower[i]), upper[i])
-    return Samples(points, steps, lengths, lengths[:0])
+    return samples

@@ -66,6 +66,7 @@ class CampaignSettings(Protocol):
     @property
     def kernels(self) -> Any: ...
 
+
 MAX_DOUBLINGS = 9
 """Most doublings of the default population size by IPOP and BIPOP restarts."""
 
@@ -118,22 +119,25 @@ class CMAState(NamedTuple):
 
 
 def start_run(
-    config: CampaignSettings, bounds: Bounds, mean: np.ndarray, plan: RunPlan, campaign: Campaign
+    config: CampaignSettings, mean: np.ndarray, plan: RunPlan, campaign: Campaign
 ) -> CMAState:
     """A run centred on ``mean`` (normalised coordinates)."""
-    strategy = run_parameters(bounds.dim, plan.population_size, bool(config.active),
+    strategy = run_parameters(mean.shape[0], plan.population_size, bool(config.active),
                               int(config.constants))  # fmt: skip
     transform = config.bound_handling is CMABoundHandling.TRANSFORM
     return CMAState(new_run(mean, plan.sigma0, strategy, transform), plan, campaign)
 
 
-def first_run(config: CampaignSettings, bounds: Bounds, start: np.ndarray) -> CMAState:
-    """The first run of a solve, centred on the evaluated ``start`` (a point of the box)."""
-    default_lambda = default_population_size(bounds.dim)
+def first_run(
+    config: CampaignSettings, lower: np.ndarray, width: np.ndarray, start: np.ndarray
+) -> CMAState:
+    """The first run of a solve, centred on the evaluated ``start`` (a point of the box of
+    corner ``lower`` and widths ``width``)."""
+    default_lambda = default_population_size(start.shape[0])
     lam = config.population_size or default_lambda
     plan = RunPlan(int(lam), float(config.sigma0), False, math.inf)
     campaign = Campaign(default_lambda, 0, 0, 0, np.zeros((0, 3), dtype=np.int64))
-    return start_run(config, bounds, (start - bounds.lower) / bounds.width, plan, campaign)
+    return start_run(config, (start - lower) / width, plan, campaign)
 
 
 def restart(
@@ -159,7 +163,7 @@ def restart(
     finished = np.array([[state.plan.population_size, used, progress.stop]], dtype=np.int64)
     campaign = Campaign(default, large, small, doublings,
                         np.concatenate((campaign.finished, finished)))  # fmt: skip
-    return start_run(config, bounds, rng.random(bounds.dim), plan, campaign)
+    return start_run(config, rng.random(bounds.dim), plan, campaign)
 
 
 def draw(

@@ -18,7 +18,7 @@ drawn around it, ``de-immediate-warm``).
 
 A generation is written once, as the kernels :func:`de_ask` and :func:`de_tell`: one round when
 deferred, one round per trial when immediate. Its uniforms, drawn ahead, hold per member ``i``
-the block ``u[i (4 + D) : (i + 1) (4 + D)]``: three picking the partners (:func:`partners_into`),
+the block ``u[i (4 + D) : (i + 1) (4 + D)]``: three picking the partners (:func:`partners_of`),
 one ``j_rand``, ``D`` crossover draws; with ``resample``, ``N D`` re-draws follow (member ``i``'s
 at ``N (4 + D) + i D``). Both updating modes read this layout, so they draw the same numbers.
 """
@@ -135,45 +135,55 @@ class DEState(NamedTuple):
     """Immediate updating: the best member as the generation's trials so far left it."""
 
 
-# inline: called once per member with the caller's scratch, so that a member allocates nothing
+# inline, and in scalars: called once per trial, so that a trial allocates nothing but itself
 @njit(cache=True, inline="always")
-def partners_into(i: int, n: int, u: np.ndarray, out: np.ndarray, taken: np.ndarray) -> None:
-    """Fill ``out`` with indices in ``[0, n)``, distinct and none equal to ``i``.
+def partners_of(i: int, n: int, u: np.ndarray, used: int) -> tuple[int, int, int]:
+    """``used`` (at most 3) indices in ``[0, n)``, distinct and none equal to ``i``; the
+    unused ones are -1.
 
     The k-th is ``floor(u[k] (n - 1 - k))`` counted among the indices not yet taken (``i`` and
     the earlier partners): each ordered choice is equally likely, and the values depend only on
-    ``u``. ``taken`` is scratch of ``len(out) + 1`` entries; needs ``n > len(out)``.
+    ``u``. Needs ``n > used``.
     """
-    taken[0] = i
-    count = 1
-    for k in range(out.shape[0]):
+    # the taken indices in increasing order, n where none is taken yet (no r reaches n)
+    low, mid, high = i, n, n
+    first = second = third = -1
+    for k in range(used):
+        count = k + 1
         r = min(int(u[k] * (n - count)), n - count - 1)
-        # the r-th free index: walk the taken ones in increasing order, skipping each
-        for a in range(count):
-            for b in range(a + 1, count):
-                if taken[b] < taken[a]:
-                    taken[a], taken[b] = taken[b], taken[a]
-        for a in range(count):
-            if r >= taken[a]:
-                r += 1
-        out[k] = r
-        taken[count] = r
-        count += 1
+        # the r-th free index: skip the taken ones, in increasing order
+        if r >= low:
+            r += 1
+        if r >= mid:
+            r += 1
+        if r >= high:
+            r += 1
+        if r < low:
+            low, mid, high = r, low, mid
+        elif r < mid:
+            mid, high = r, mid
+        else:
+            high = r
+        if k == 0:
+            first = r
+        elif k == 1:
+            second = r
+        else:
+            third = r
+    return first, second, third
 
 
 # inline: called once per member, so that a generation's trials stay one loop
 @njit(cache=True, inline="always")
-def mutant_into(out, x, i, best, s, uniforms, scratch):  # type: ignore[no-untyped-def]
+def mutant_into(out, x, i, best, s, uniforms):  # type: ignore[no-untyped-def]
     """Member ``i``'s trial before bound handling into the row ``out``: mutation (around the
     member ``best`` for current-to-best/1), binomial crossover; ``s`` the :class:`DESettings`,
-    ``uniforms`` the generation's, ``scratch`` ``2 PARTNER_UNIFORMS + 1`` integers."""
+    ``uniforms`` the generation's."""
     n, d = x.shape
     block = PARTNER_UNIFORMS + 1 + d
     u = uniforms[i * block : (i + 1) * block]
-    partners, taken = scratch[:PARTNER_UNIFORMS], scratch[PARTNER_UNIFORMS:]
     used = PARTNER_UNIFORMS if s.strategy == DEStrategy.RAND_1_BIN else PARTNER_UNIFORMS - 1
-    partners_into(i, n, u[:used], partners[:used], taken)
-    a, b, c = partners[0], partners[1], partners[2]
+    a, b, c = partners_of(i, n, u, used)
     j_rand = min(int(u[PARTNER_UNIFORMS] * d), d - 1)
     for j in range(d):
         if j != j_rand and not u[PARTNER_UNIFORMS + 1 + j] < s.crossover_rate:
@@ -184,7 +194,7 @@ def mutant_into(out, x, i, best, s, uniforms, scratch):  # type: ignore[no-untyp
             out[j] = x[i, j] + s.differential_weight * (x[best, j] - x[i, j] + x[a, j] - x[b, j])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def redraws_of(s, uniforms, n, d, member, rows):  # type: ignore[no-untyped-def]
     """The re-draws of members ``member .. member + rows - 1``, shape ``(rows, D)``: the
     values ``resample`` puts in place of their coordinates outside the box (else empty)."""
@@ -201,27 +211,29 @@ def de_ask(state, params, uniforms, normals, iteration, remaining):  # type: ign
     coordinates can leave the box."""
     s = DESettings(*params)
     n, d = state.x.shape
-    scratch = np.empty(2 * PARTNER_UNIFORMS + 1, dtype=np.int64)
+    # one return: each exit would count references to the state's arrays again
     if s.updating == DEUpdating.DEFERRED:
         trials = np.empty((n, d))
         best = np.argmin(state.f)
         for i in range(n):
-            mutant_into(trials[i], state.x, i, best, s, uniforms, scratch)
+            mutant_into(trials[i], state.x, i, best, s, uniforms)
         redraws = redraws_of(s, uniforms, n, d, 0, n)
         apply_bounds_inplace(trials, s.lower, s.upper, s.bound_handling, redraws)
-        return state, trials, True
-    if iteration != state.generation:
-        # the generation's own copies, into which its rounds' selections are written
-        x, f = state.x.copy(), state.f.copy()
-        member, best = 0, np.argmin(f)
+        last = True
     else:
-        x, f, member, best = state.x, state.f, state.member + 1, state.best
-    trial = np.empty((1, d))
-    mutant_into(trial[0], x, member, best, s, uniforms, scratch)
-    redraws = redraws_of(s, uniforms, n, d, member, 1)
-    apply_bounds_inplace(trial, s.lower, s.upper, s.bound_handling, redraws)
-    last = member == n - 1 or remaining <= 1
-    return DEState(x, f, iteration, member, best), trial, last
+        if iteration != state.generation:
+            # the generation's own copies, into which its rounds' selections are written
+            x, f = state.x.copy(), state.f.copy()
+            member, best = 0, np.argmin(f)
+        else:
+            x, f, member, best = state.x, state.f, state.member + 1, state.best
+        trials = np.empty((1, d))
+        mutant_into(trials[0], x, member, best, s, uniforms)
+        redraws = redraws_of(s, uniforms, n, d, member, 1)
+        apply_bounds_inplace(trials, s.lower, s.upper, s.bound_handling, redraws)
+        last = member == n - 1 or remaining <= 1
+        state = DEState(x, f, iteration, member, best)
+    return state, trials, last
 
 
 @njit(cache=True, inline="always")

@@ -158,34 +158,39 @@ def modified_bso_ask(state, params, uniforms, normals, iteration, remaining):  #
     width = s.n_clusters if s.all_centre_weighting else SHI_UNIFORMS_PER_IDEA
     draws = bso_draws(uniforms, normals, n_clusters=s.n_clusters, width=width)
     x, f = state.x, state.f
-    if state.stage == STARTING and s.chaos_replacement and draws.replace_draw < s.p_replace:
-        # all n_r candidates or none: when fewer evaluations are left the ideas get them
-        if remaining >= s.n_replace:
-            candidates = chaotic_candidates(
-                replacement_map=s.replacement_map, seed=draws.point, n_replace=s.n_replace,
-                lower=s.lower, upper=s.upper,
-            )  # fmt: skip
-            asked = ModifiedBSOState(x, f, REPLACEMENT_ASKED, candidates, state.candidate_costs,
-                                     state.labels, state.replacements)  # fmt: skip
-            return asked, candidates, False
-    clusters = clusters_of(x, f, state.labels, draws.kmeans, kmeans_max_iter=s.kmeans_max_iter)
-    if state.stage == REPLACEMENT_TOLD:
-        slot = random_centre(clusters.centre_index, draws.centre_draw)
-        x, f = install_best(x, f, slot, state.candidates, state.candidate_costs)
-    if s.all_centre_weighting:
-        auxiliary = all_centre_auxiliary(
-            x, clusters.centre_index, draws.sources, weight_map=s.weight_map,
-            n_weight_iterations=s.n_weight_iterations, normalise_weights=s.normalise_weights,
+    # all n_r candidates or none: when fewer evaluations are left the ideas get them
+    replacing = (
+        state.stage == STARTING and s.chaos_replacement and draws.replace_draw < s.p_replace
+        and remaining >= s.n_replace
+    )  # fmt: skip
+    # one return: each exit would count references to the state's arrays again
+    if replacing:
+        asked_points = chaotic_candidates(
+            replacement_map=s.replacement_map, seed=draws.point, n_replace=s.n_replace,
+            lower=s.lower, upper=s.upper,
         )  # fmt: skip
+        asked = ModifiedBSOState(x, f, REPLACEMENT_ASKED, asked_points, state.candidate_costs,
+                                 state.labels, state.replacements)  # fmt: skip
     else:
-        auxiliary = shi_select(
-            x, clusters, draws.sources, p_one_cluster=s.p_one_cluster,
-            p_one_centre=s.p_one_centre, p_two_centres=s.p_two_centres,
-        )  # fmt: skip
-    ideas = move_ideas(auxiliary, logsig_factor(iteration, t_max=s.t_max, slope=s.slope), draws, s)
-    asked = ModifiedBSOState(x, f, STARTING, state.candidates, state.candidate_costs,
-                             state.labels, state.replacements)  # fmt: skip
-    return asked, ideas, True
+        clusters = clusters_of(x, f, state.labels, draws.kmeans, kmeans_max_iter=s.kmeans_max_iter)
+        if state.stage == REPLACEMENT_TOLD:
+            slot = random_centre(clusters.centre_index, draws.centre_draw)
+            x, f = install_best(x, f, slot, state.candidates, state.candidate_costs)
+        if s.all_centre_weighting:
+            auxiliary = all_centre_auxiliary(
+                x, clusters.centre_index, draws.sources, weight_map=s.weight_map,
+                n_weight_iterations=s.n_weight_iterations, normalise_weights=s.normalise_weights,
+            )  # fmt: skip
+        else:
+            auxiliary = shi_select(
+                x, clusters, draws.sources, p_one_cluster=s.p_one_cluster,
+                p_one_centre=s.p_one_centre, p_two_centres=s.p_two_centres,
+            )  # fmt: skip
+        factor = logsig_factor(iteration, t_max=s.t_max, slope=s.slope)
+        asked_points = move_ideas(auxiliary, factor, draws, s)
+        asked = ModifiedBSOState(x, f, STARTING, state.candidates, state.candidate_costs,
+                                 state.labels, state.replacements)  # fmt: skip
+    return asked, asked_points, not replacing
 
 
 @njit(cache=True, inline="always")
@@ -193,11 +198,13 @@ def modified_bso_tell(state, params, candidates, costs, iteration):  # type: ign
     """Keep the replacement candidates' costs for the ideas' round, or select the ideas: each
     evaluated idea replaces the member of its slot when strictly better."""
     if state.stage == REPLACEMENT_ASKED:
-        return ModifiedBSOState(state.x, state.f, REPLACEMENT_TOLD, candidates, costs,
+        told = ModifiedBSOState(state.x, state.f, REPLACEMENT_TOLD, candidates, costs,
                                 state.labels, state.replacements + 1)  # fmt: skip
-    x, f, _ = greedy_select(state.x, state.f, candidates[: costs.shape[0]], costs)
-    return ModifiedBSOState(x, f, STARTING, state.candidates, state.candidate_costs,
-                            state.labels, state.replacements)  # fmt: skip
+    else:
+        x, f, _ = greedy_select(state.x, state.f, candidates[: costs.shape[0]], costs)
+        told = ModifiedBSOState(x, f, STARTING, state.candidates, state.candidate_costs,
+                                state.labels, state.replacements)  # fmt: skip
+    return told
 
 
 register_kernels(ModifiedBSOState, modified_bso_ask, modified_bso_tell)

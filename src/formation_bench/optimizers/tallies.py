@@ -7,9 +7,8 @@ reads the evaluations left and the best so far between blocks, and hands each bl
 * :class:`CompiledTally`: the objective has a compiled handle; the block runs in compiled
   code (the optimiser's ``*_iterate``), the objective called through its C address;
 * :class:`ForwardedTally`: the objective is a Python callable; the block still runs in the
-  same compiled code, and the objective is reached through a C callback that forwards each
-  batch to an :class:`~formation_bench.optimizers.base.EvaluationCounter` (a copy of the
-  batch, so that an objective keeping it never holds memory the compiled code frees). An
+  same compiled code, and the objective is reached through a C callback that forwards a
+  copy of each batch to it (the compiled side counts the evaluations and keeps the best). An
   exception in the objective (a KeyboardInterrupt too) ends the block at once and is raised
   again when it returns;
 * :class:`CounterTally`: a configuration whose ``ask`` is Python (the modified BSO with
@@ -23,6 +22,7 @@ from __future__ import annotations
 import abc
 import ctypes
 import math
+from time import perf_counter
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -36,11 +36,12 @@ from formation_bench.optimizers.base import (
 from formation_bench.optimizers.compiled import (
     LIMIT,
     NFEV,
+    NO_LIMIT,
+    UNLIMITED,
     CompiledObjective,
     compiled_of,
     evaluate_prefix,
     new_tally,
-    remaining,
 )
 from formation_bench.optimizers.population import CompiledStart, compiled_result
 
@@ -123,7 +124,9 @@ class CompiledTally(Tally):
         self.counts, self.best = new_tally(dim, max_evaluations)
 
     def remaining(self) -> int:
-        return int(remaining(self.counts))
+        # compiled.remaining's arithmetic, without a call into compiled code from Python
+        counts = self.counts
+        return UNLIMITED if counts[LIMIT] == NO_LIMIT else int(counts[LIMIT] - counts[NFEV])
 
     def progress(self) -> tuple[int, float]:
         return int(self.counts[NFEV]), float(self.best[0])
@@ -148,23 +151,39 @@ _COST_CALLBACK = ctypes.CFUNCTYPE(
 
 
 class ForwardedTally(CompiledTally):
-    """The compiled loop with a Python objective, reached through a C callback."""
+    """The compiled loop with a Python objective, reached through a C callback.
 
-    def __init__(self, counter: EvaluationCounter, dim: int, started: float) -> None:
-        self.counter = counter
+    The compiled side already counts the evaluations, keeps the best point and maps
+    non-finite costs to ``+inf`` (:func:`~formation_bench.optimizers.compiled.evaluate`), so a
+    call only copies the batch, calls the objective, checks the costs' count and times it:
+    an immediate DE generation calls it once per trial.
+    """
+
+    def __init__(self, objective: Any, dim: int, max_evaluations: int | None,
+                 started: float) -> None:  # fmt: skip
+        self.python_objective = objective
+        self.objective_time_s = 0.0
         self.failure: BaseException | None = None
         callback = _COST_CALLBACK(self._forward)
         address = ctypes.cast(callback, ctypes.c_void_p).value
         assert address is not None
-        super().__init__(CompiledObjective(address, np.zeros(1), callback),
-                         counter.max_evaluations, dim, started)  # fmt: skip
+        super().__init__(CompiledObjective(address, np.zeros(1), callback), max_evaluations,
+                         dim, started)  # fmt: skip
 
     def _forward(self, x_address: int, n: int, d: int, data: int, out_address: int) -> None:
         out = np.frombuffer((ctypes.c_double * n).from_address(out_address), dtype=np.float64)
         if self.failure is None:
             try:
+                # a copy, so that an objective keeping the batch never holds memory the
+                # compiled code frees
                 batch = np.array((ctypes.c_double * (n * d)).from_address(x_address))
-                out[:] = self.counter(batch.reshape(n, d))
+                start = perf_counter()
+                raw = self.python_objective(batch.reshape(n, d))
+                self.objective_time_s += perf_counter() - start
+                costs = np.asarray(raw, dtype=np.float64).reshape(-1)
+                if costs.shape[0] != n:
+                    raise ValueError(f"objective returned {costs.shape[0]} costs for {n} points")
+                out[:] = costs
                 return
             except BaseException as exc:  # raised again by the caller, after the block
                 self.failure = exc
@@ -188,7 +207,7 @@ class ForwardedTally(CompiledTally):
 
     def result(self, nit: int, message: str, history: History, info: dict) -> OptimizeResult:
         result = super().result(nit, message, history, info)
-        result.info["objective_time_s"] = self.counter.objective_time_s
+        result.info["objective_time_s"] = self.objective_time_s
         return result
 
 
@@ -257,5 +276,4 @@ def open_tally(
     handle = compiled_of(objective)
     if handle is not None:
         return CompiledTally(handle, budget.max_evaluations, dim, started)
-    counter = EvaluationCounter(objective, dim, budget.max_evaluations)
-    return ForwardedTally(counter, dim, started)
+    return ForwardedTally(objective, dim, budget.max_evaluations, started)
