@@ -2,7 +2,7 @@
 
 Run ``python -m perf.gradient_speed`` (``--json FILE`` keeps the figures,
 ``--quick`` runs a short scenario for a smoke test). In one process it measures,
-for ``ipopt``, ``ltv-osqp`` and ``modified-bso`` (or ``--optimizers``):
+for ``ipopt``, ``ltv-osqp``, ``ilqr`` and ``modified-bso`` (or ``--optimizers``):
 
 A. **closed loop**: the paper scenario without trigger, so every UAV solves at
    every instant (240 x 3 = 720 solves per run), each optimiser on the problems
@@ -40,7 +40,7 @@ from formation_bench.mpc.scenario import Scenario, get_scenario
 from formation_bench.optimizers import get_optimizer
 from formation_bench.pipeline.runner import warm_up_kernels
 
-DEFAULT_OPTIMIZERS = ("ipopt", "ltv-osqp", "modified-bso")
+DEFAULT_OPTIMIZERS = ("ipopt", "ltv-osqp", "ilqr", "modified-bso")
 TARGETS_MS = {"ipopt": 3.0, "ltv-osqp": 1.0}
 """Median per solve the issue asks for (per UAV per instant, 2-core machine)."""
 

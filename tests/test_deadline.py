@@ -125,7 +125,9 @@ def test_a_suite_budget_may_be_a_deadline(tmp_path):
         parse_suite(bad, tmp_path / "s.toml")
 
 
-@pytest.mark.parametrize(("name", "failures"), [("ipopt", "none"), ("ltv-osqp", "all")])
+@pytest.mark.parametrize(
+    ("name", "failures"), [("ipopt", "none"), ("ltv-osqp", "all"), ("ilqr", "none")]
+)
 def test_the_gradient_solvers_stop_at_the_deadline(name, failures, tmp_path):
     out = tmp_path / name
     args = ["run", "--optimizer", name, "--no-figures", "--set", "n_steps=4"]
@@ -133,7 +135,8 @@ def test_the_gradient_solvers_stop_at_the_deadline(name, failures, tmp_path):
     assert code == 0
     (record,) = json.loads((out / "metrics.json").read_text())
     assert record["deadline_misses"] == record["solves_total"] == 12
-    # IPOPT's iterate at its wall-time limit is used; OSQP's first QP cannot finish in a
+    # IPOPT's iterate at its wall-time limit is used, as iLQR's after its first iteration (it
+    # checks the clock before each later one); OSQP's first QP cannot finish in a
     # microsecond, so each UAV keeps its shifted plan and the failure is counted
     expected = 0 if failures == "none" else record["solves_total"]
     assert record["solve_failures"] == expected

@@ -1,4 +1,4 @@
-"""The derivative-based baselines ``ipopt`` and ``ltv-osqp`` on the paper's problem."""
+"""The derivative-based baselines ``ipopt``, ``ltv-osqp`` and ``ilqr`` on the paper's problem."""
 
 from __future__ import annotations
 
@@ -31,6 +31,9 @@ SHORT = get_scenario("paper", n_steps=8, settle_time_s=0.0)
 PAPER_BOUNDS = LocalProblem(
     PAPER, 0, np.zeros(4), np.zeros((2, 20, 2)), np.zeros((2, 20, 2)), np.zeros((20, 2))
 ).bounds
+
+GRADIENT_SOLVERS = ["ipopt", "ltv-osqp", "ilqr"]
+"""The derivative-based baselines the shared checks run on."""
 
 
 def random_problem(rng: np.random.Generator, scenario, uav: int = 0) -> LocalProblem:
@@ -241,7 +244,7 @@ def test_ltv_osqp_is_never_worse_than_its_warm_start_and_iterates(instants):
 # --- both: interface, failures, closed loop -------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", ["ipopt", "ltv-osqp"])
+@pytest.mark.parametrize("name", GRADIENT_SOLVERS)
 def test_needs_a_local_problem(name):
     with pytest.raises(TypeError, match="LocalProblem"):
         get_optimizer(name).minimize(
@@ -280,7 +283,7 @@ def test_forced_failure_falls_back_to_the_shifted_plan_and_is_counted(name, over
     assert np.all(np.isfinite(trace.states))
 
 
-@pytest.mark.parametrize("name", ["ipopt", "ltv-osqp"])
+@pytest.mark.parametrize("name", GRADIENT_SOLVERS)
 def test_a_solver_error_is_a_counted_failure_not_an_exception(name):
     problem = random_problem(np.random.default_rng(0), PAPER)
     problem.reference[3] = np.nan  # the cost cannot be evaluated anywhere
@@ -292,7 +295,7 @@ def test_a_solver_error_is_a_counted_failure_not_an_exception(name):
     np.testing.assert_array_equal(result.x, x0)
 
 
-@pytest.mark.parametrize("name", ["ipopt", "ltv-osqp"])
+@pytest.mark.parametrize("name", GRADIENT_SOLVERS)
 def test_deterministic_picklable_and_run_independent(name):
     scenario = get_scenario("paper", n_steps=30, settle_time_s=0.0)
     optimizer = get_optimizer(name)
@@ -308,9 +311,9 @@ def test_deterministic_picklable_and_run_independent(name):
 
 
 @pytest.mark.slow
-def test_cli_runs_both_baselines_with_and_without_trigger(tmp_path, capfd):
+def test_cli_runs_every_baseline_with_and_without_trigger(tmp_path, capfd):
     short = ["--set", "n_steps=15", "--set", "settle_time_s=1.0"]
-    for name in ("ipopt", "ltv-osqp"):
+    for name in GRADIENT_SOLVERS:
         for flag in ("--trigger", "--no-trigger"):
             out_dir = tmp_path / f"{name}{flag}"
             code = cli_main(["run", "--optimizer", name, flag, *short, "--out", str(out_dir)])

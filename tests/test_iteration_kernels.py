@@ -11,7 +11,16 @@ import numpy as np
 import pytest
 
 from formation_bench.fields import kernel_field_names, kernel_value
-from formation_bench.optimizers import OPTIMIZERS, Bounds, Budget, get_optimizer
+from formation_bench.optimizers import (
+    OPTIMIZERS,
+    Bounds,
+    Budget,
+    cem,
+    cem_update,
+    get_optimizer,
+    mppi,
+    predictive_sampling,
+)
 from formation_bench.optimizers.bso_ops import move_ideas
 from formation_bench.optimizers.cls_bso import (
     LocalSearchConfig,
@@ -46,6 +55,27 @@ SETTINGS = [
         "s",
     ),
     (LocalSearchConfig, LocalSettings, (), (cls_ask, local_candidates), "local"),
+    (
+        mppi.MPPIConfig,
+        mppi.MPPISettings,
+        mppi.PER_SOLVE,
+        (mppi.mppi_ask, mppi.mppi_tell, mppi.mppi_update),
+        "s",
+    ),
+    (
+        predictive_sampling.PredictiveSamplingConfig,
+        predictive_sampling.PredictiveSamplingSettings,
+        predictive_sampling.PER_SOLVE,
+        (predictive_sampling.predictive_sampling_ask, predictive_sampling.predictive_sampling_tell),
+        "s",
+    ),
+    (
+        cem.CEMConfig,
+        cem.CEMSettings,
+        cem.PER_SOLVE,
+        (cem.cem_ask, cem.cem_tell, cem_update.batch_size),
+        "s",
+    ),
 ]
 IDS = [entry[1].__name__ for entry in SETTINGS]
 

@@ -139,6 +139,26 @@ def test_a_distribution_is_drawn_on_a_log_axis_only_when_declared_and_spread():
     plt.close(fig)
 
 
+def test_report_compares_with_several_baselines(results, tmp_path, capsys):
+    out = tmp_path / "two"
+    args = ["report", str(results), "--baseline", "no-modifications", "no-all-centre"]
+    assert main([*args, "--out", str(out), "--no-figures"]) == 0
+    printed = capsys.readouterr().out
+    assert "(baseline 'no-modifications' and 'no-all-centre')" in printed
+    assert "| p (Holm) vs no-modifications | A12 vs no-modifications |" in printed
+    assert "| p (Holm) vs no-all-centre | A12 vs no-all-centre |" in printed
+    wilcoxon = pd.read_csv(out / "wilcoxon.csv")
+    assert set(wilcoxon["baseline"]) == {"no-modifications", "no-all-centre"}
+    # each baseline's family is Holm-adjusted on its own: two levels against each
+    per_family = wilcoxon.groupby(["trigger", "metric", "baseline"]).size()
+    assert (per_family == 2).all()
+    pair = wilcoxon.set_index(["trigger", "metric", "baseline", "optimizer"])
+    key = ("on", "tracking_error_max_m")
+    ab = pair.loc[(*key, "no-all-centre", "no-modifications")]
+    ba = pair.loc[(*key, "no-modifications", "no-all-centre")]
+    assert ab["p"] == pytest.approx(ba["p"]) and ab["a12"] == pytest.approx(1 - ba["a12"])
+
+
 def test_report_compares_triggers_and_refuses_an_unknown_baseline(results, tmp_path, capsys):
     out = tmp_path / "rep"
     code = main(["report", str(results), "--compare", "trigger", "--out", str(out), "--no-figures"])

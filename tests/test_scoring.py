@@ -261,37 +261,55 @@ def paired_scores() -> pd.DataFrame:
 
 def test_paired_table_by_hand():
     paired = score_report.paired_table(paired_scores())
-    table = paired.set_index(["x", "y"])
+    kinds = list(dict.fromkeys(paired["comparison"]))
+    # pso leaves the smallest median gap: the leader
+    assert kinds == [
+        "against modified-bso",
+        "against the leader, pso",
+        "warm start against uniform start",
+    ]
+    by_kind = {kind: rows.set_index(["x", "y"]) for kind, rows in paired.groupby("comparison")}
+    table = by_kind["against modified-bso"]
     assert list(table.index) == [
         ("de-warm", "modified-bso"),
         ("pso", "modified-bso"),
         ("pso-warm", "modified-bso"),
-        ("pso-warm", "pso"),
     ]
+    leader = by_kind["against the leader, pso"]
+    assert list(leader.index) == [("de-warm", "pso"), ("modified-bso", "pso"), ("pso-warm", "pso")]
+    warm = by_kind["warm start against uniform start"]
+    assert list(warm.index) == [("pso-warm", "pso")]
     assert (paired["pairs"] == 12).all()
     # every difference of one sign: W = 0, exact two-sided p = 2 * 2^-12 = 2^-11
-    for pair in [("pso", "modified-bso"), ("pso-warm", "modified-bso"), ("pso-warm", "pso")]:
+    for pair in [("pso", "modified-bso"), ("pso-warm", "modified-bso")]:
         assert table.loc[pair, "p"] == pytest.approx(2**-11)
+    assert warm.loc[("pso-warm", "pso"), "p"] == pytest.approx(2**-11)
     # every pso value below every modified-bso value: A12 = 0; pso-warm above pso: A12 = 1
     assert table.loc[("pso", "modified-bso"), "a12"] == 0.0
-    assert table.loc[("pso-warm", "pso"), "a12"] == 1.0
+    assert warm.loc[("pso-warm", "pso"), "a12"] == 1.0
+    assert leader.loc[("modified-bso", "pso"), "a12"] == 1.0
     assert table.loc[("pso", "modified-bso"), "x_lower"] == 12
     assert table.loc[("pso", "modified-bso"), "reading"].startswith("favours pso:")
-    assert table.loc[("pso-warm", "pso"), "reading"].startswith("favours pso:")
+    assert warm.loc[("pso-warm", "pso"), "reading"].startswith("favours pso:")
     # de-warm equals modified-bso on every problem: p 1, A12 0.5, 12 ties
     equal = table.loc[("de-warm", "modified-bso")]
     assert (equal["p"], equal["a12"], equal["ties"]) == (1.0, 0.5, 12)
     assert equal["reading"].startswith("no difference")
     # Holm within each kind at the budget: three against modified-bso, p 2^-11, 2^-11, 1
-    # -> 3 * 2^-11, max(2 * 2^-11, 3 * 2^-11) = 3 * 2^-11, 1; the warm pair alone keeps 2^-11
+    # -> 3 * 2^-11, max(2 * 2^-11, 3 * 2^-11) = 3 * 2^-11, 1; the warm pair alone keeps 2^-11;
+    # against the leader all three p are 2^-11 -> 3 * 2^-11
     assert table.loc[("pso", "modified-bso"), "p_holm"] == pytest.approx(3 * 2**-11)
     assert table.loc[("pso-warm", "modified-bso"), "p_holm"] == pytest.approx(3 * 2**-11)
     assert table.loc[("de-warm", "modified-bso"), "p_holm"] == 1.0
-    assert table.loc[("pso-warm", "pso"), "p_holm"] == pytest.approx(2**-11)
-    assert table.loc[("pso-warm", "pso"), "comparison"] == "warm start against uniform start"
-    # without modified-bso, only the warm pairs
+    assert warm.loc[("pso-warm", "pso"), "p_holm"] == pytest.approx(2**-11)
+    assert leader["p_holm"].tolist() == pytest.approx([3 * 2**-11] * 3)
+    # without modified-bso: against the leader and the warm pairs
     alone = score_report.paired_table(paired_scores().query("optimizer != 'modified-bso'"))
-    assert list(zip(alone["x"], alone["y"], strict=True)) == [("pso-warm", "pso")]
+    assert list(zip(alone["comparison"], alone["x"], alone["y"], strict=True)) == [
+        ("against the leader, pso", "de-warm", "pso"),
+        ("against the leader, pso", "pso-warm", "pso"),
+        ("warm start against uniform start", "pso-warm", "pso"),
+    ]
 
 
 def test_the_experiments_import_nothing_from_the_analysis():

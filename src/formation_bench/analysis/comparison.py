@@ -6,9 +6,9 @@ optimiser but both trigger settings, as the ``paper`` suite does); the other fac
 block, for every metric:
 
 - per level of the factor: n, median, quartiles, IQR, bootstrap 95 % CI of the median;
-- against the baseline level, paired by seed: Wilcoxon signed-rank p-value, Holm-adjusted
-  over the block's comparisons for that metric, and the Vargha-Delaney A12
-  (P(level > baseline); below 0.5 the level has lower values);
+- against the baseline level (or each of several), paired by seed: Wilcoxon signed-rank
+  p-value, Holm-adjusted over the block's comparisons with that baseline for that metric, and
+  the Vargha-Delaney A12 (P(level > baseline); below 0.5 the level has lower values);
 - across all levels (3 or more): Friedman's test over the seeds present for every
   level, the average ranks (1 = lowest value) and Nemenyi post-hoc p-values.
 
@@ -80,17 +80,24 @@ def levels_of(frame: pd.DataFrame, factor: str) -> list[str]:
     return list(dict.fromkeys(frame[factor]))
 
 
-def choose_baseline(frame: pd.DataFrame, factor: str, baseline: str | None) -> str:
+def choose_baselines(
+    frame: pd.DataFrame, factor: str, baselines: str | list[str] | tuple[str, ...] | None
+) -> tuple[str, ...]:
+    """The levels every other one is compared with: ``baselines`` (checked), else the
+    preferred level of the factor (the modified BSO, the trigger off, the paper scenario)."""
     levels = levels_of(frame, factor)
-    if baseline is not None:
-        if baseline not in levels:
-            raise ReportError(
-                f"--baseline: {baseline!r} is not a {factor} in these results; "
-                f"allowed: {', '.join(levels)}"
-            )
-        return baseline
+    if isinstance(baselines, str):
+        baselines = (baselines,)
+    if baselines:
+        for baseline in baselines:
+            if baseline not in levels:
+                raise ReportError(
+                    f"--baseline: {baseline!r} is not a {factor} in these results; "
+                    f"allowed: {', '.join(levels)}"
+                )
+        return tuple(dict.fromkeys(baselines))
     preferred = {"optimizer": "modified-bso", "trigger": "off", "scenario": "paper"}.get(factor)
-    return preferred if preferred in levels else levels[0]
+    return (preferred if preferred in levels else levels[0],)
 
 
 @dataclass
@@ -98,7 +105,8 @@ class Report:
     """Everything a report holds."""
 
     factor: str
-    baseline: str
+    baselines: tuple[str, ...]
+    """The levels compared with every other, the first the main one."""
     block_factors: list[str]
     metrics: list[str]
     summary: pd.DataFrame
@@ -108,20 +116,26 @@ class Report:
     nemenyi: pd.DataFrame
     notes: list[str] = field(default_factory=list)
 
+    @property
+    def baseline(self) -> str:
+        """The main baseline (the first)."""
+        return self.baselines[0]
+
 
 def analyse(
     results: pd.DataFrame,
     *,
-    baseline: str | None = None,
+    baseline: str | list[str] | tuple[str, ...] | None = None,
     compare: str | None = None,
     metrics: list[str] | None = None,
 ) -> Report:
     """Statistics of a results table (as
     :func:`formation_bench.experiments.store.load_results` returns it), of every
-    metric column or of ``metrics`` (those of them the table holds)."""
+    metric column or of ``metrics`` (those of them the table holds); ``baseline`` is one
+    level or several, each compared with every other level."""
     frame = prepare(results)
     factor = choose_factor(frame, compare)
-    base = choose_baseline(frame, factor, baseline)
+    bases = choose_baselines(frame, factor, baseline)
     block_factors = [f for f in FACTORS if f != factor]
     every = metric_columns(frame)
     metrics = every if metrics is None else [m for m in metrics if m in every]
@@ -130,16 +144,22 @@ def analyse(
     for block_values, block in frame.groupby(block_factors, sort=False):
         block_key = dict(zip(block_factors, block_values, strict=True))
         levels = levels_of(block, factor)
-        compared = [level for level in levels if level != base]
-        if base not in levels and len(levels) > 1:
-            notes.append(f"{describe_block(block_key, frame)}: no {base!r} runs, no paired tests")
+        for base in bases:
+            if base not in levels and len(levels) > 1:
+                notes.append(
+                    f"{describe_block(block_key, frame)}: no {base!r} runs, no paired tests "
+                    f"against it"
+                )
         for metric in metrics:
             table = block.pivot_table(index="seed", columns=factor, values=metric, aggfunc="first")
             table = table.reindex(columns=levels)
             for k, level in enumerate(levels):
                 s = stats.describe(table[level].to_numpy(), seed=k)
                 summary_rows.append({**block_key, factor: level, "metric": metric, **vars(s)})
-            if base in levels and compared:
+            for base in bases:
+                compared = [level for level in levels if level != base]
+                if base not in levels or not compared:
+                    continue
                 rows = []
                 for level in compared:
                     pair = table[[level, base]].dropna()
@@ -197,7 +217,7 @@ def analyse(
                                 )
     return Report(
         factor=factor,
-        baseline=base,
+        baselines=bases,
         block_factors=block_factors,
         metrics=metrics,
         summary=pd.DataFrame(summary_rows),

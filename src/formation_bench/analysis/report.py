@@ -60,13 +60,15 @@ def to_markdown(
 ) -> str:
     """The report as Markdown: one section per block, one table per metric."""
     frame = prepare(results)
-    factor, base = report.factor, report.baseline
+    factor = report.factor
+    bases = " and ".join(repr(b) for b in report.baselines)
     chosen = [m for m in (metrics or report.metrics) if m in report.metrics]
     lines = [f"# {title or 'Sweep report'}", ""]
     lines.append(
-        f"{len(frame)} runs; compared: {factor} (baseline {base!r}); levels: "
+        f"{len(frame)} runs; compared: {factor} (baseline {bases}); levels: "
         f"{', '.join(levels_of(frame, factor))}. Paired by seed; Wilcoxon signed-rank "
-        f"(two-sided), Holm-adjusted per block and metric; A12 = P({factor} > baseline) "
+        f"(two-sided), Holm-adjusted per block, metric and baseline; A12 = P({factor} > "
+        "baseline) "
         "(< 0.5: lower values than the baseline). CI: bootstrap 95 % CI of the median. "
         "Rank: Friedman average rank, 1 = lowest."
     )
@@ -133,29 +135,32 @@ def _metric_table(
     ranks = tables.select("ranks", block_key, metric)
     ranks = ranks.set_index(factor) if not ranks.empty else ranks
     friedman = tables.select("friedman", block_key, metric)
-    header = f"| {factor} | n | median | IQR | 95 % CI | p (Holm) | A12 |"
-    rule = "|---|---:|---:|---:|---|---:|---:|"
+    several = len(report.baselines) > 1
+    header = f"| {factor} | n | median | IQR | 95 % CI |"
+    rule = "|---|---:|---:|---:|---|"
+    for base in report.baselines:
+        header += f" p (Holm) vs {base} | A12 vs {base} |" if several else " p (Holm) | A12 |"
+        rule += "---:|---:|"
     if not ranks.empty:
         header += " rank |"
         rule += "---:|"
     lines = [f"**{metric}**", "", header, rule]
     for level, row in summary.iterrows():
-        if level in getattr(tests, "index", []):
-            test = tests.loc[level]
-            mark = " *" if test["significant"] else ""
-            p_text, a_text = p_cell(test["p_holm"]) + mark, f"{test['a12']:.2f}"
-        else:
-            p_text = "baseline" if level == report.baseline else "–"
-            a_text = "–"
         cells = [
             str(level),
             str(row["n"]),
             number_cell(row["median"]),
             number_cell(row["iqr"]),
             f"{number_cell(row['ci_low'])} – {number_cell(row['ci_high'])}",
-            p_text,
-            a_text,
         ]
+        for base in report.baselines:
+            against = tests[tests["baseline"] == base] if not tests.empty else tests
+            if level in getattr(against, "index", []):
+                test = against.loc[level]
+                mark = " *" if test["significant"] else ""
+                cells += [p_cell(test["p_holm"]) + mark, f"{test['a12']:.2f}"]
+            else:
+                cells += ["baseline" if level == base else "–", "–"]
         if not ranks.empty:
             cells.append(f"{ranks.loc[level, 'average_rank']:.2f}" if level in ranks.index else "–")
         lines.append("| " + " | ".join(cells) + " |")
@@ -237,7 +242,7 @@ def make_report(
     results_dir: Path | str,
     out: Path | str | None = None,
     *,
-    baseline: str | None = None,
+    baseline: str | list[str] | tuple[str, ...] | None = None,
     compare: str | None = None,
     figures: bool = True,
 ) -> tuple[Report, str, Path]:

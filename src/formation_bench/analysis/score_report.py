@@ -21,7 +21,8 @@ above :data:`FAILURE_GAP`, charged at the slowest solve at the same budget). Bes
   the warm start's cost or better, and the median ``|f - J*|``;
 - per phase of the loop (start-up, transient, steady): the median normalised gap;
 - paired comparisons, by problem, of the normalised gap: every optimiser against
-  :data:`BASELINE` and every ``X-warm`` against ``X`` (Wilcoxon signed-rank, two-sided,
+  :data:`BASELINE`, against the leader (the optimiser with the smallest median normalised
+  gap at that budget) and every ``X-warm`` against ``X`` (Wilcoxon signed-rank, two-sided,
   Holm-adjusted within each budget and kind of comparison; Vargha-Delaney A12);
 - COCO's expected running time to each target, the Dolan-More performance profile of solve
   time and, with figures, the runtime ECDF.
@@ -232,13 +233,17 @@ def phase_table(scores: pd.DataFrame) -> pd.DataFrame:
     )
 
 
-def comparisons(optimizers: list[str]) -> list[tuple[str, str, str]]:
+def comparisons(optimizers: list[str], leader: str | None = None) -> list[tuple[str, str, str]]:
     """``(kind, x, y)`` of the paired comparisons among ``optimizers``: each against
-    :data:`BASELINE` when it is there, each ``X-warm`` against ``X``."""
+    :data:`BASELINE` when it is there, each against ``leader`` (the best at the budget, when
+    given and not the baseline), each ``X-warm`` against ``X``."""
     present = set(optimizers)
     found = []
     if BASELINE in present:
         found += [(f"against {BASELINE}", x, BASELINE) for x in optimizers if x != BASELINE]
+    if leader is not None and leader != BASELINE and leader in present:
+        kind = f"against the leader, {leader}"
+        found += [(kind, x, leader) for x in optimizers if x != leader]
     found += [("warm start against uniform start", x, y) for x, y in variant_pairs(optimizers)]
     return found
 
@@ -267,8 +272,10 @@ def paired_table(scores: pd.DataFrame) -> pd.DataFrame:
         table = at_budget.pivot_table(
             index="content_hash", columns="optimizer", values="normalised_gap", aggfunc="first"
         )
+        medians = table.median().sort_index()
+        leader = str(medians.idxmin()) if medians.notna().any() else None
         found = []
-        for kind, x_name, y_name in comparisons(sorted(table.columns)):
+        for kind, x_name, y_name in comparisons(sorted(table.columns), leader):
             pair = table[[x_name, y_name]].dropna()
             compared = stats.paired_comparison(pair[x_name], pair[y_name])
             found.append(

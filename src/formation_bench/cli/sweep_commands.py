@@ -438,8 +438,10 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
     report.add_argument(
         "--baseline",
         metavar="NAME",
-        help="level compared against (default: modified-bso when comparing optimizers, "
-        "'off' when comparing trigger settings)",
+        nargs="+",
+        help="level(s) every other level is compared against, each with its own paired tests "
+        "(default: modified-bso when comparing optimizers, 'off' when comparing trigger "
+        "settings); e.g. --baseline modified-bso cma-es",
     )
     report.add_argument(
         "--compare",

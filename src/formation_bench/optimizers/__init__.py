@@ -16,18 +16,23 @@ from formation_bench.optimizers.base import (
     OptimizeResult,
     PopulationOptimizer,
 )
+from formation_bench.optimizers.cem import CEM
 from formation_bench.optimizers.chaos import ChaoticMap
 from formation_bench.optimizers.cls_bso import ChaoticLocalSearchBSO
 from formation_bench.optimizers.cma_es import CMAES
 from formation_bench.optimizers.differential_evolution import DifferentialEvolution
 from formation_bench.optimizers.modified_bso import ModifiedBSO
+from formation_bench.optimizers.mppi import MPPI
 from formation_bench.optimizers.original_bso import OriginalBSO
+from formation_bench.optimizers.predictive_sampling import PredictiveSampling
 from formation_bench.optimizers.pso import PSO
 from formation_bench.optimizers.random_search import RandomSearch
 from formation_bench.optimizers.registry import OPTIMIZERS, get_optimizer, optimizer_names, register
 
 __all__ = [
+    "CEM",
     "CMAES",
+    "MPPI",
     "OPTIMIZERS",
     "PSO",
     "BatchObjective",
@@ -43,6 +48,7 @@ __all__ = [
     "Optimizer",
     "OriginalBSO",
     "PopulationOptimizer",
+    "PredictiveSampling",
     "RandomSearch",
     "adapters",
     "get_optimizer",

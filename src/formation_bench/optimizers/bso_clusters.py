@@ -98,10 +98,13 @@ def clusters_of(
     """The population's clusters: from ``given_labels`` when it holds one label per member
     (a k-means computed outside compiled code, e.g. scikit-learn's), else by
     :func:`cluster_population`."""
+    # one return: each exit of an inlined function counts references to its result's arrays
     if given_labels.shape[0] == population.shape[0]:
         centre, sizes = cluster_centres(given_labels, costs, uniforms.shape[0])
-        return Clusters(given_labels, centre, sizes)
-    return cluster_population(population, costs, uniforms, kmeans_max_iter=kmeans_max_iter)
+        clusters = Clusters(given_labels, centre, sizes)
+    else:
+        clusters = cluster_population(population, costs, uniforms, kmeans_max_iter=kmeans_max_iter)
+    return clusters
 
 
 # inline: a thin layer (see the note at move_ideas in bso_ops)

@@ -8,11 +8,12 @@ import casadi, osqp or cvxpy: each solver imports them when it first builds a
 solver.
 """
 
+from formation_bench.mpc.solvers.ilqr import IlqrOptimizer
 from formation_bench.mpc.solvers.ipopt_solver import IpoptOptimizer
 from formation_bench.mpc.solvers.ltv_osqp import LtvOsqpOptimizer
 from formation_bench.optimizers.registry import register
 
-__all__ = ["IpoptOptimizer", "LtvOsqpOptimizer"]
+__all__ = ["IlqrOptimizer", "IpoptOptimizer", "LtvOsqpOptimizer"]
 
 register(
     "ipopt",
@@ -23,4 +24,9 @@ register(
     "ltv-osqp",
     LtvOsqpOptimizer(),
     "Linear time-varying MPC: QP linearised about the shifted plan, OSQP, 1 SQP round; baseline",
+)
+register(
+    "ilqr",
+    IlqrOptimizer(),
+    "Iterative LQR on eq. (14), a stage per control block, box QP per stage, line search; baseline",
 )
