@@ -344,13 +344,19 @@ def _scenario_of(entry):
     return get_scenario(entry.name, **from_json_value(json.loads(entry.overrides)))
 
 
+SCENARIO_SUITE_OPTIMIZERS = [
+    "modified-bso", "pso", "ltv-osqp", "mppi", "predictive-sampling", "cem", "icem", "ilqr",
+]  # fmt: skip
+"""The optimisers of the swarm and robustness suites, in suite order."""
+
+
 def test_swarm_suite_plans_every_size_on_every_graph_with_connected_range_graphs():
     from scipy.sparse.csgraph import connected_components
 
     from formation_bench.mpc.network import listening
 
     suite = load_suite("swarm")
-    assert [e.name for e in suite.optimizers] == ["modified-bso", "pso", "ltv-osqp"]
+    assert [e.name for e in suite.optimizers] == SCENARIO_SUITE_OPTIMIZERS
     assert suite.seeds == tuple(range(5)) and suite.triggers == (True,)
     planned = {}
     for entry in suite.scenarios:
@@ -370,7 +376,7 @@ def test_swarm_suite_plans_every_size_on_every_graph_with_connected_range_graphs
         20: {"complete", "ring", "k-nearest", "range"},
     }
     runs = suite.runs()
-    assert len(runs) == run_count(suite) == 14 * 3 * 5
+    assert len(runs) == run_count(suite) == 14 * len(SCENARIO_SUITE_OPTIMIZERS) * 5
     assert len({r.key for r in runs}) == len(runs)
 
 
@@ -412,7 +418,7 @@ def test_robustness_suite_varies_one_disturbance_family_at_a_time():
     from formation_bench.analysis.suite_sections import FAMILIES
 
     suite = load_suite("robustness")
-    assert [e.name for e in suite.optimizers] == ["modified-bso", "pso", "ltv-osqp"]
+    assert [e.name for e in suite.optimizers] == SCENARIO_SUITE_OPTIMIZERS
     assert set(suite.triggers) == {True, False} and len(suite.seeds) == 5
     levels = {}
     for entry in suite.scenarios:
@@ -440,7 +446,7 @@ def test_robustness_suite_varies_one_disturbance_family_at_a_time():
         mismatch.disturbances.plant_accel_gain,
         mismatch.disturbances.plant_turn_rate_gain,
     ) == (0.8, 0.8)
-    assert len(suite.runs()) == 15 * 3 * 2 * 5
+    assert len(suite.runs()) == 15 * len(SCENARIO_SUITE_OPTIMIZERS) * 2 * 5
 
 
 def test_obstacles_suite_turns_the_penalties_on_and_off():

@@ -92,7 +92,7 @@ def choose_baselines(
         for baseline in baselines:
             if baseline not in levels:
                 raise ReportError(
-                    f"--baseline: {baseline!r} is not a {factor} in these results; "
+                    f"--baseline: {baseline!r} is not a level of {factor} in these results; "
                     f"allowed: {', '.join(levels)}"
                 )
         return tuple(dict.fromkeys(baselines))

@@ -1,4 +1,4 @@
-"""What the derivative-based baselines (``ipopt``, ``ltv-osqp``) share.
+"""What the derivative-based baselines (``ipopt``, ``ltv-osqp``, ``ilqr``) share.
 
 They differ from the population optimisers in three ways that this module
 handles once:
