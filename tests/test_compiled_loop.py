@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import pickle
 import time
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -44,6 +45,7 @@ from formation_bench.optimizers.compiled import (
 )
 from formation_bench.optimizers.population import ROWS_AHEAD
 from formation_bench.optimizers.registry import optimizer_names
+from formation_bench.optimizers.tallies import dressed, plain
 
 
 def _shifted_sphere(x_ptr, n, d, data_ptr, out_ptr):  # type: ignore[no-untyped-def]
@@ -394,3 +396,40 @@ def test_one_generator_through_consecutive_solves_stays_in_step():
             compiled = optimizer.minimize(problem, problem.bounds, compiled_rng, budget)
             assert same_result(python, compiled), (name, budget)
     assert same_state(python_rng.bit_generator.state, compiled_rng.bit_generator.state)
+
+
+class Inner(NamedTuple):
+    values: np.ndarray
+    count: int
+
+
+class Outer(NamedTuple):
+    inner: Inner
+    scale: float
+    pair: tuple
+
+
+@nb.njit
+def _returned_plain(value):  # type: ignore[no-untyped-def]
+    return plain(value)
+
+
+def test_a_compiled_state_crosses_back_to_python_as_plain_tuples_and_is_dressed_again():
+    """numba boxes a named tuple through an unchecked Python call, where a Ctrl-C crashed the
+    process: a block returns plain tuples, and Python gives them their classes back."""
+    value = Outer(Inner(np.arange(3.0), 2), 1.5, (1, 2.0))
+    returned = _returned_plain(value)
+    assert type(returned) is tuple and type(returned[0]) is tuple
+    twin = plain(value)  # the Python twin gives the same shape
+    assert type(twin) is tuple and type(twin[0]) is tuple and twin[1:] == returned[1:]
+    again = dressed(returned, value)
+    assert type(again) is Outer and type(again.inner) is Inner and type(again.pair) is tuple
+    np.testing.assert_array_equal(again.inner.values, value.inner.values)
+    assert (again.inner.count, again.scale, again.pair) == (2, 1.5, (1, 2.0))
+    # a real block: CMA-ES's nested state comes back with every class
+    optimizer = get_optimizer("cma-es")
+    result = optimizer.minimize(
+        lambda x: (x**2).sum(axis=1), Bounds(-np.ones(4), np.ones(4)), np.random.default_rng(0),
+        Budget(max_evaluations=200),
+    )  # fmt: skip
+    assert result.info["population_size"] == 8 and math.isfinite(result.info["sigma"])

@@ -31,7 +31,7 @@ from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.compiled import COST_SIGNATURE, new_tally
 from formation_bench.optimizers.differential_evolution import DEState, DEStrategy, DEUpdating
 from formation_bench.optimizers.population import starting_points
-from formation_bench.optimizers.tallies import Block, Draws, iterate_python
+from formation_bench.optimizers.tallies import Block, Draws, dressed, iterate_python
 
 # --- the immediate rule by hand --------------------------------------------------------------
 
@@ -125,7 +125,8 @@ def test_the_immediate_rule_by_hand_in_both_paths() -> None:
     u = hand_uniforms()
     block = Block(_compiled_squares.address, np.zeros(1), counts, best, u[None, :],
                   np.empty((1, 0)), np.empty(1, dtype=np.int64), np.empty(1))  # fmt: skip
-    compiled, done = HAND.kernels.iterate(state, HAND.params(HAND_BOX, 1), block, 0, 1)
+    returned, done = HAND.kernels.iterate(state, HAND.params(HAND_BOX, 1), block, 0, 1)
+    compiled = dressed(returned, state)
     assert done == 1
     np.testing.assert_array_equal(compiled.x, HAND_TRIALS)
     np.testing.assert_array_equal(compiled.f, HAND_COSTS)

@@ -401,7 +401,16 @@ def pack_settings(settings_class: type[tuple], obj: Any, **per_solve: Any) -> tu
     namedtuple through Python (about 1 us per call); the kernels rebuild the
     namedtuple (``Settings(*packed)``), which costs nothing in compiled code.
     """
-    return tuple(
-        per_solve[n] if n in per_solve else kernel_value(getattr(obj, n))
-        for n in settings_class._fields  # type: ignore[attr-defined]
-    )
+    fields = settings_class._fields  # type: ignore[attr-defined]
+    count = len(fields) - len(per_solve)
+    if per_solve.keys() != set(fields[count:]):  # not the declared-then-per-solve order
+        return tuple(
+            per_solve[n] if n in per_solve else kernel_value(getattr(obj, n)) for n in fields
+        )
+    # the declared part is fixed for a (frozen) configuration: read once per instance, outside
+    # its dataclass fields (a solve packs its settings again; reading 20 fields took some 5 µs)
+    cache = obj.__dict__.setdefault("_declared_kernel_values", {})
+    head = cache.get(settings_class)
+    if head is None:
+        head = cache[settings_class] = tuple(kernel_value(getattr(obj, n)) for n in fields[:count])
+    return head + tuple(per_solve[n] for n in fields[count:])

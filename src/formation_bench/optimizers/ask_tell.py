@@ -64,7 +64,7 @@ from formation_bench.optimizers.population import (
     no_randoms,
     starting_points,
 )
-from formation_bench.optimizers.tallies import Draws, History, Tally, open_tally
+from formation_bench.optimizers.tallies import Draws, History, Tally, open_tally, plain
 
 
 @dataclass(frozen=True)
@@ -138,7 +138,7 @@ def register_kernels(state_class: type, ask_kernel: Any, tell_kernel: Any) -> No
 def iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def]
     """Iterations ``nit + 1``, ... ``nit + rows`` of a compiled solve, while evaluations are
     left, with the kernels registered for ``state``'s class. Returns ``(state, iterations
-    done)``."""
+    done)``, the state as a plain tuple (:func:`plain`; :func:`dressed` restores it)."""
     done = 0
     for row in range(rows):
         if remaining(block.counts) <= 0:
@@ -158,7 +158,7 @@ def iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def]
         block.history_nfev[done] = block.counts[NFEV]
         block.history_fun[done] = block.best[0]
         done += 1
-    return state, done
+    return plain(state), done
 
 
 class Kernels(NamedTuple):

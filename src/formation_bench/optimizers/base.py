@@ -93,8 +93,9 @@ class Bounds:
         return bool(np.all(x >= self.lower) and np.all(x <= self.upper))
 
     def clip(self, x: np.ndarray) -> np.ndarray:
-        """Project ``x`` onto the box."""
-        return np.clip(x, self.lower, self.upper)
+        """Project ``x`` onto the box (``np.clip``'s values; two ufuncs are faster than its
+        dispatch on the small arrays of a solve)."""
+        return np.minimum(np.maximum(x, self.lower), self.upper)
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
         """``n`` points drawn uniformly in the box."""
@@ -297,7 +298,7 @@ def check_x0(x0: np.ndarray | None, bounds: Bounds) -> np.ndarray | None:
     x0 = np.asarray(x0, dtype=np.float64).reshape(-1)
     if x0.size != bounds.dim:
         raise ValueError(f"x0 must have {bounds.dim} entries, got {x0.size}")
-    if not np.all(np.isfinite(x0)):
+    if not np.isfinite(x0).all():
         raise ValueError("x0 must be finite")
     return bounds.clip(x0)
 
