@@ -28,7 +28,11 @@ from formation_bench.optimizers import (
 )
 
 sphere = shifted_sphere(CENTRE)
-NAMES = optimizer_names()
+NAMES = [
+    # nevergrad's adapters take seconds per test (Python per candidate): CI runs them
+    pytest.param(name, marks=pytest.mark.slow) if name.startswith("ng-") else name
+    for name in optimizer_names()
+]
 MISSING = OPTIMIZERS.missing()
 """Optional optimisers (the adapters) whose library is not installed here, and why."""
 
