@@ -61,6 +61,7 @@ from formation_bench.optimizers.cem_update import (
     iterations_within,
 )
 from formation_bench.optimizers.coloured_noise import coloured_normals, noise_matrix
+from formation_bench.optimizers.plan_sampling import NominalStart, PlanShape
 from formation_bench.optimizers.registry import register
 
 PER_SOLVE = ("t_max", "kept_count", "noise_matrix", "lower", "upper")
@@ -68,7 +69,7 @@ PER_SOLVE = ("t_max", "kept_count", "noise_matrix", "lower", "upper")
 
 
 @dataclass(frozen=True)
-class CEMConfig(Validated):
+class CEMConfig(PlanShape, Validated):
     """The settings of :class:`CEM`, declared once (defaults: ``cem``)."""
 
     population_size: int = setting(
@@ -87,11 +88,6 @@ class CEMConfig(Validated):
     momentum: float = setting(
         0.1, low=0.0, high=1.0, high_open=True, kernel=True,
         doc="alpha: mean and std become alpha old + (1 - alpha) the elites'",
-    )  # fmt: skip
-    plan_channels: int = setting(
-        2, low=1,
-        doc="Values per stage of a stage-major plan; the decision vector's length must be a "
-        "multiple",
     )  # fmt: skip
     noise_exponent: float = setting(
         0.0, low=0.0, high=6.0,
@@ -171,7 +167,7 @@ def cem_iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def
 
 
 @dataclass(frozen=True)
-class CEM(CEMConfig, AskTellOptimizer):
+class CEM(CEMConfig, NominalStart, AskTellOptimizer):
     """CEM and iCEM; see the module docstring for the method, its sources and choices."""
 
     kernels = Kernels(cem_ask, cem_tell, cem_iterate)
@@ -179,9 +175,6 @@ class CEM(CEMConfig, AskTellOptimizer):
     @property
     def default_budget(self) -> Budget:
         return Budget(max_evaluations=self.max_evaluations)
-
-    def initial_evaluations(self) -> int:
-        return 1  # the start alone
 
     def planned_iterations(self, budget: Budget) -> int:
         """The iterations the budget allows, with the sample sizes of the decay."""
@@ -191,21 +184,11 @@ class CEM(CEMConfig, AskTellOptimizer):
         return min(limits)
 
     def params(self, bounds: Bounds, t_max: int) -> tuple:
-        if bounds.dim % self.plan_channels:
-            raise ValueError(f"CEM.plan_channels = {self.plan_channels} must divide the decision "
-                             f"vector's length, got dimension {bounds.dim}")  # fmt: skip
         return pack_settings(
             CEMSettings, self, t_max=int(t_max), kept_count=self.kept_count(),
-            noise_matrix=noise_matrix(self.noise_exponent, bounds.dim // self.plan_channels),
+            noise_matrix=noise_matrix(self.noise_exponent, self.stages(bounds.dim)),
             lower=np.array(bounds.lower), upper=np.array(bounds.upper),
         )  # fmt: skip
-
-    def initial_points(
-        self, bounds: Bounds, rng: np.random.Generator, x0: np.ndarray | None
-    ) -> np.ndarray:
-        """The initial mean alone: ``x0``, else the box centre (nothing drawn)."""
-        start = 0.5 * (bounds.lower + bounds.upper) if x0 is None else x0
-        return np.array(start, dtype=np.float64)[None]
 
     def start(
         self, points: np.ndarray, costs: np.ndarray, rng: np.random.Generator, params: tuple
