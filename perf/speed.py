@@ -5,11 +5,8 @@ It records real per-UAV problems of the paper scenario, then measures:
 
 - the batch objective for a population of 30: compiled kernel versus the plain
   eq. (14) reference evaluated row by row (the "before");
-- the cost kernel per evaluation, ``batch_cost`` (rotation recurrence) against
-  ``batch_cost_reference`` (three sin/cos pairs per RK4 sub-step) on the same
-  populations, alternating, and the ratio per repeat (its median is reported):
-  a ratio formed within one run holds up when other processes load the machine
-  (``--kernel-only`` runs just this);
+- the cost kernel per evaluation and this machine's floor: :mod:`perf.kernel_speed`
+  (``python -m perf.kernel_speed`` runs just this);
 - one modified-BSO solve at its default budget (median over instants and
   repeats; the compiled loop), split into cost evaluation (replayed, see
   :mod:`perf.replay`), clustering (replayed, see
@@ -26,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import platform
 import time
 import timeit
@@ -36,7 +32,6 @@ from typing import Any
 import numpy as np
 
 from formation_bench.instances.instants import RecordedInstant, record_instants
-from formation_bench.mpc.cost import NO_PENALTIES, batch_cost, batch_cost_reference
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import ModifiedBSO, get_optimizer
 from formation_bench.optimizers.ask_tell import Kernels, run_blocks
@@ -45,6 +40,7 @@ from formation_bench.optimizers.clustering import lloyd_kmeans, sklearn_kmeans
 from formation_bench.optimizers.tallies import open_tally
 from formation_bench.pipeline.runner import execute, warm_up_kernels
 from formation_bench.pipeline.spec import RunSpec
+from perf import kernel_speed
 from perf.replay import replayed_objective_seconds, solve_batches
 
 
@@ -97,97 +93,6 @@ def default_population_size() -> int:
     return sizes.pop()
 
 
-def kernel_comparison(
-    instants: list[RecordedInstant], population_size: int, repeats: int, number: int = 200
-) -> dict[str, Any]:
-    """Per-evaluation CPU time of ``batch_cost_reference`` and ``batch_cost``, and their ratio.
-
-    Each problem gets one population drawn in its bounds. A repeat times
-    ``number`` calls of each kernel on every problem, the two kernels taking
-    turns on a problem, in this thread's CPU time; the ratio new / old is
-    formed per repeat, so slow spells from other processes that last longer
-    than a repeat cancel. Reported: medians over the repeats, the quartiles of
-    the ratio, the largest relative difference of the two kernels' costs, and
-    the load average before and after.
-    """
-    rng = np.random.default_rng(0)
-    calls = []
-    for inst in instants:
-        problem = inst.problem
-        scenario = problem.scenario
-        # the kernels' own arguments, as LocalProblem.__call__ passes them
-        args = (
-            problem.state, problem.block_of_step, scenario.timing.period_s,
-            scenario.timing.rk4_substeps, problem._distance_targets, problem._centre_target,
-            scenario.weights.w_dst, problem._w_centre,
-        )  # fmt: skip
-        calls.append((problem.bounds.sample(rng, population_size), args))
-    max_rel = 0.0
-    for x, args in calls:
-        old, new = batch_cost_reference(x, *args), batch_cost(x, *args, *NO_PENALTIES)
-        max_rel = max(max_rel, float(np.max(np.abs(new - old) / np.abs(old))))
-    load_before = os.getloadavg()
-    per_evaluation = number * population_size * len(calls)
-    old_s, new_s = [], []
-    for _ in range(repeats):
-        totals = {batch_cost_reference: 0.0, batch_cost: 0.0}
-        for x, args in calls:
-            for kernel in totals:
-                kernel_args = args if kernel is batch_cost_reference else (*args, *NO_PENALTIES)
-                start = time.thread_time()
-                for _ in range(number):
-                    kernel(x, *kernel_args)
-                totals[kernel] += time.thread_time() - start
-        old_s.append(totals[batch_cost_reference] / per_evaluation)
-        new_s.append(totals[batch_cost] / per_evaluation)
-    ratios = np.array(new_s) / np.array(old_s)
-    return {
-        "kernel_population": population_size,
-        "kernel_problems": len(calls),
-        "kernel_repeats": repeats,
-        "kernel_reference_per_eval_s": float(np.median(old_s)),
-        "kernel_rotation_per_eval_s": float(np.median(new_s)),
-        "kernel_ratio_median": float(np.median(ratios)),
-        "kernel_ratio_quartiles": [float(q) for q in np.quantile(ratios, [0.25, 0.75])],
-        "kernel_max_relative_difference": max_rel,
-        "load_average_before": list(load_before),
-        "load_average_after": list(os.getloadavg()),
-    }
-
-
-def format_kernel_comparison(results: dict[str, Any]) -> str:
-    """A Markdown table of :func:`kernel_comparison`'s figures."""
-    ns = 1e9
-    q1, q3 = results["kernel_ratio_quartiles"]
-    load = ", ".join(
-        f"{a:.2f} -> {b:.2f}"
-        for a, b in zip(results["load_average_before"], results["load_average_after"], strict=True)
-    )
-    rows = [
-        (
-            f"cost kernel before (batch_cost_reference), population {results['kernel_population']}",
-            f"{ns * results['kernel_reference_per_eval_s']:.0f} ns per evaluation",
-        ),
-        (
-            "cost kernel now (batch_cost, rotation recurrence)",
-            f"{ns * results['kernel_rotation_per_eval_s']:.0f} ns per evaluation",
-        ),
-        (
-            f"ratio now / before, per repeat ({results['kernel_repeats']} repeats)",
-            f"{results['kernel_ratio_median']:.3f} (quartiles {q1:.3f}, {q3:.3f})",
-        ),
-        (
-            "largest relative difference of the costs",
-            f"{results['kernel_max_relative_difference']:.1e}",
-        ),
-        ("load average (1, 5, 15 min) before -> after", load),
-    ]
-    width = max(len(r[0]) for r in rows)
-    lines = [f"| {'measurement':<{width}} | value |", f"|{'-' * (width + 2)}|-------|"]
-    lines += [f"| {name:<{width}} | {value} |" for name, value in rows]
-    return "\n".join(lines)
-
-
 def measure(quick: bool = False) -> dict[str, Any]:
     """Run every measurement; ``quick`` shrinks repeats (for a smoke test)."""
     warm_up_kernels()
@@ -195,9 +100,7 @@ def measure(quick: bool = False) -> dict[str, Any]:
     optimizer = get_optimizer("modified-bso")
     assert isinstance(optimizer, ModifiedBSO)
     instants = record_instants(scenario, optimizer, [5, 60, 150], seed=1)
-    results_kernel = kernel_comparison(
-        instants, default_population_size(), repeats=3 if quick else 21, number=20 if quick else 200
-    )
+    results_kernel = kernel_speed.measure(repeats=3 if quick else 11, calls=20 if quick else 300)
     rng = np.random.default_rng(0)
     results: dict[str, Any] = {
         "machine": platform.platform(),
@@ -305,18 +208,7 @@ def format_results(results: dict[str, Any]) -> str:
     width = max(len(r[0]) for r in rows)
     lines = [f"| {'measurement':<{width}} | median |", f"|{'-' * (width + 2)}|--------|"]
     lines += [f"| {name:<{width}} | {value} |" for name, value in rows]
-    return "\n".join(lines) + "\n\n" + format_kernel_comparison(results)
-
-
-def measure_kernels(repeats: int = 21, number: int = 200) -> dict[str, Any]:
-    """Only :func:`kernel_comparison`, on the recorded paper problems."""
-    warm_up_kernels()
-    instants = record_instants(
-        get_scenario("paper"), get_optimizer("modified-bso"), [5, 60, 150], seed=1
-    )
-    results = {"machine": platform.platform(), "python": platform.python_version()}
-    results.update(kernel_comparison(instants, default_population_size(), repeats, number))
-    return results
+    return "\n".join(lines) + "\n\n" + kernel_speed.format_results(results)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -325,19 +217,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     parser.add_argument("--quick", action="store_true", help="few repeats, no closed-loop run")
-    parser.add_argument(
-        "--kernel-only", action="store_true", help="only the cost kernel, before against now"
-    )
-    parser.add_argument(
-        "--repeats", type=int, default=21, help="repeats of the kernel comparison (21)"
-    )
     args = parser.parse_args(argv)
-    if args.kernel_only:
-        results = measure_kernels(args.repeats)
-        print(format_kernel_comparison(results))
-    else:
-        results = measure(quick=args.quick)
-        print(format_results(results))
+    results = measure(quick=args.quick)
+    print(format_results(results))
     if args.json:
         args.json.write_text(json.dumps(results, indent=2) + "\n")
     return 0

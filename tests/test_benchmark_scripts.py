@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from perf import population_speed, scaling, speed
+from perf import kernel_speed, scaling
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -64,16 +64,28 @@ def test_timing_suite_collects_every_optimizer_and_runs(tmp_path):
 
 
 @pytest.mark.slow
-def test_kernel_comparison_times_both_kernels_on_paper_problems():
-    instants = population_speed.paper_instants((5,))
-    figures = speed.kernel_comparison(instants, speed.default_population_size(), 3, number=5)
-    assert figures["kernel_population"] == 30 and figures["kernel_problems"] == 3
-    assert figures["kernel_reference_per_eval_s"] > 0 and figures["kernel_rotation_per_eval_s"] > 0
-    low, high = figures["kernel_ratio_quartiles"]
-    assert 0 < low <= figures["kernel_ratio_median"] <= high
-    assert figures["kernel_max_relative_difference"] < 1e-12
-    table = speed.format_kernel_comparison(figures)
-    assert "ns per evaluation" in table and "ratio now / before, per repeat (3 repeats)" in table
+def test_kernel_speed_times_every_kernel_and_the_floor():
+    figures = kernel_speed.measure(repeats=2, calls=5)
+    for population in kernel_speed.POPULATIONS:
+        reference = figures[f"reference_per_eval_s_{population}"]
+        assert 0 < figures[f"numba_per_eval_s_{population}"] < reference
+        if figures["c_kernel_built"]:
+            assert 0 < figures[f"c_per_eval_s_{population}"] < reference
+    # the paper's problem: 5 blocks, 20 periods of one sub-step, 2 neighbours, 2 resets
+    assert figures["operations_per_evaluation"] == 5 * 43 + 2 * 37 + 20 * (33 + 2 * 6 + 9) + 1
+    table = kernel_speed.format_results(figures)
+    assert "operations per evaluation (a fused multiply-add counts 2) | 1370" in table
+    if figures["c_kernel_built"]:
+        assert figures["fma_flops"] > 1e9 and "floor of an evaluation" in table
+
+
+def test_operation_count_follows_the_problem_shape():
+    count = kernel_speed.operations_per_evaluation
+    # one more period adds a sub-step, its neighbours and the centre term
+    assert count(21, 5, 1, 2) - count(20, 5, 1, 2) == 33 + 2 * 6 + 9
+    # 16 sub-steps of the horizon between fresh headings
+    assert count(16, 1, 1, 0) - count(15, 1, 1, 0) == 33 + 9
+    assert count(17, 1, 1, 0) - count(16, 1, 1, 0) == 33 + 9 + 37
 
 
 @pytest.mark.slow

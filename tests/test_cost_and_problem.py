@@ -98,7 +98,9 @@ def test_rotation_kernel_matches_reference_at_large_headings(theta):
 
     The reference rounds its middle-stage heading ``theta + h omega / 2`` to the
     spacing of the floats near ``theta``, where the rotation turns by the exact
-    half turn: the two then agree to about that spacing, relative, not better.
+    half turn, and both round the advanced heading to that spacing at every sub-step
+    (the kernel once, in a fused multiply-add; the reference twice): the two then agree
+    to a few times that spacing, relative, not better.
     """
     rng = np.random.default_rng(11)
     state, distance_targets, centre_target, decisions = random_kernel_inputs(rng, 20, 4, 2, 30)
@@ -107,7 +109,7 @@ def test_rotation_kernel_matches_reference_at_large_headings(theta):
     np.testing.assert_allclose(
         batch_cost(decisions, *args, *NO_PENALTIES),
         batch_cost_reference(decisions, *args),
-        rtol=max(1e-12, float(np.spacing(abs(theta)))),
+        rtol=max(1e-12, 4 * float(np.spacing(abs(theta)))),
     )
 
 
@@ -124,11 +126,15 @@ def plant_path(state, decision, block_of_step, period, substeps):
     ("horizon", "n_blocks", "substeps", "theta"),
     [(20, 5, 1, 0.4), (20, 20, 1, -2.9), (9, 2, 3, 1.0), (11, 3, 37, 5.5), (6, 2, 2, -4e6)],
 )
-def test_kernel_prediction_is_the_plant_to_the_bit(horizon, n_blocks, substeps, theta):
-    """A plan's predicted positions are those the plant reaches under it, to the last bit.
+def test_kernel_prediction_is_the_plant_to_rounding(horizon, n_blocks, substeps, theta):
+    """The kernel's predicted positions are those the plant reaches, to rounding.
 
-    With the plant's own positions as every target, each term of the cost is
-    zero only if the kernel's position equals the plant's exactly.
+    With the plant's own positions as every target, the cost is
+    ``period * (2 w_dst + w_centre) * sum_k |d_k|^2`` for the kernel's position errors
+    d_k, which bounds the largest of them. The kernel rounds differently (fused
+    multiply-adds, the heading's pair rotated across periods): its positions stay within
+    1e-14 of the path's size, or a few float spacings of the heading where that is
+    larger (far past the polynomial's range the heading itself rounds to about 1e-9).
     """
     rng = np.random.default_rng([horizon, substeps])
     block_of_step = block_map(horizon, n_blocks)
@@ -140,7 +146,9 @@ def test_kernel_prediction_is_the_plant_to_the_bit(horizon, n_blocks, substeps, 
         costs = batch_cost(
             decisions, state, block_of_step, 0.2, substeps, *targets, 1.0, 0.3, *NO_PENALTIES
         )
-        assert costs[row] == 0.0
+        largest_error = np.sqrt(costs[row] / (0.2 * (2 * 1.0 + 0.3)))
+        bound = max(1e-14, 8 * float(np.spacing(abs(theta)))) * np.abs(path).max()
+        assert largest_error <= bound
         others = np.delete(costs, row)
         assert np.all(others > 0)
 

@@ -13,12 +13,13 @@ The compiled kernels precompute everything that does not depend on the
 decision: the distance targets ``p_hat_j + p_ij^d`` and the centre target
 ``N * p_c^d - sum_j p_hat_j`` (then the centre term is
 ``w_trj / N^2 * ||p_i - target||^2``). :func:`batch_cost` integrates the
-model as the plant does (:func:`formation_bench.mpc.model.advance_period`: the
-heading's cosine and sine from a vectorisable polynomial at each period start,
-rotations within the period) and advances all candidates together;
+model in fused multiply-adds (:mod:`formation_bench.mpc.fused`: the heading's
+cosine and sine from a vectorisable polynomial, rotations in between) and
+advances all candidates together; the C kernel of
+:mod:`formation_bench.mpc.native_cost` computes the same numbers to the bit, faster.
 :func:`batch_cost_reference` is the straightforward kernel, three sin/cos pairs
 per RK4 sub-step; :func:`reference_cost` evaluates the formula
-as printed, one point at a time, with a textbook RK4. Tests check the three
+as printed, one point at a time, with a textbook RK4. Tests check that they
 agree.
 """
 
@@ -31,14 +32,8 @@ import math
 import numba as nb
 import numpy as np
 
-from formation_bench.mpc.model import (
-    HEADING_RESET_SUBSTEPS,
-    REDUCTION_LIMIT,
-    reduced_cos_sin,
-    rk4_substep,
-    rotated_substep,
-    turn_rotation,
-)
+from formation_bench.mpc.fused import fma, fused_cos_sin, fused_substep, fused_turn
+from formation_bench.mpc.model import HEADING_RESET_SUBSTEPS, REDUCTION_LIMIT, rk4_substep
 
 
 @nb.njit(cache=True, inline="always")
@@ -86,27 +81,30 @@ def batch_cost(
     ``(c_x, c_y, r_o)`` (r_o the radius at which the penalty starts).
 
     Each period is :func:`~formation_bench.mpc.model.advance_period` for every
-    candidate, written out with the candidates innermost: the same operations
-    on each candidate in the same order, so the predicted positions are the
-    plant's to the bit, while the sub-steps, free of calls, run several
-    candidates per instruction. The turn's cosine and sine are taken once
-    per block, the heading's at each period start and every
-    ``HEADING_RESET_SUBSTEPS`` sub-steps within a period.
+    candidate in the fused arithmetic of :mod:`formation_bench.mpc.fused`, written out
+    with the candidates innermost so that the sub-steps, free of calls, run several
+    candidates per instruction. The turn's cosine and sine are taken once per block, the
+    heading's every ``HEADING_RESET_SUBSTEPS`` sub-steps counted from the horizon's
+    start; in between they are rotated. The predicted positions agree with the plant's to
+    rounding. ``_cost_kernel.c`` (:mod:`formation_bench.mpc.native_cost`) is this function
+    in C, to the bit.
     """
     n = decisions.shape[0]
     horizon = block_of_step.shape[0]
     n_neighbours = distance_targets.shape[0]
     h = period / substeps
+    sixth_h = h / 6.0
     # one row per quantity, one column per candidate: the loops over the
     # candidates then run over contiguous memory, and one allocation serves all
-    work = np.empty((14, n))
+    work = np.empty((15, n))
     x, y, theta, v, cos_t, sin_t = work[0], work[1], work[2], work[3], work[4], work[5]
     accel, omega, cos_half, sin_half = work[6], work[7], work[8], work[9]
-    cos_full, sin_full, total, penalty = work[10], work[11], work[12], work[13]
+    cos_full, sin_full, total, penalty, formation = work[10], work[11], work[12], work[13], work[14]
     for i in range(n):
         x[i], y[i], theta[i], v[i] = state[0], state[1], state[2], state[3]
         total[i] = 0.0
     current_block = -1
+    substep = 0
     for k in range(horizon):
         block = block_of_step[k]
         if block != current_block:
@@ -114,30 +112,35 @@ def batch_cost(
             for i in range(n):
                 accel[i] = decisions[i, 2 * block]
                 omega[i] = decisions[i, 2 * block + 1]
-                cos_half[i], sin_half[i], cos_full[i], sin_full[i] = turn_rotation(omega[i], h)
-        for m in range(substeps):
-            if m % HEADING_RESET_SUBSTEPS == 0:
+                cos_half[i], sin_half[i], cos_full[i], sin_full[i] = fused_turn(0.5 * h * omega[i])
+        for _ in range(substeps):
+            if substep % HEADING_RESET_SUBSTEPS == 0:
                 # cos_sin(theta) of every candidate, split so that the common case vectorises
                 for i in range(n):
-                    cos_t[i], sin_t[i] = reduced_cos_sin(theta[i])
+                    cos_t[i], sin_t[i] = fused_cos_sin(theta[i])
                 for i in range(n):
                     if not abs(theta[i]) < REDUCTION_LIMIT:
                         cos_t[i], sin_t[i] = math.cos(theta[i]), math.sin(theta[i])
+            substep += 1
             for i in range(n):
-                x[i], y[i], cos_t[i], sin_t[i], v[i] = rotated_substep(
-                    x[i], y[i], cos_t[i], sin_t[i], v[i], accel[i], h,
-                    cos_half[i], sin_half[i], cos_full[i], sin_full[i],
-                )  # fmt: skip
-                theta[i] = theta[i] + h * omega[i]
+                turn = (cos_half[i], sin_half[i], cos_full[i], sin_full[i])
+                dx, dy, cos_t[i], sin_t[i], v[i] = fused_substep(
+                    cos_t[i], sin_t[i], v[i], accel[i], h, turn
+                )
+                x[i] = fma(sixth_h, dx, x[i])
+                y[i] = fma(sixth_h, dy, y[i])
+                theta[i] = fma(h, omega[i], theta[i])
+        # neighbour outermost, so that the candidates stay innermost here too
+        formation[:] = 0.0
+        for j in range(n_neighbours):
+            target_x, target_y = distance_targets[j, k, 0], distance_targets[j, k, 1]
+            for i in range(n):
+                dx, dy = x[i] - target_x, y[i] - target_y
+                formation[i] = fma(dx, dx, fma(dy, dy, formation[i]))
+        centre_x, centre_y = centre_target[k, 0], centre_target[k, 1]
         for i in range(n):
-            formation = 0.0
-            for j in range(n_neighbours):
-                dx = x[i] - distance_targets[j, k, 0]
-                dy = y[i] - distance_targets[j, k, 1]
-                formation += dx * dx + dy * dy
-            cx = x[i] - centre_target[k, 0]
-            cy = y[i] - centre_target[k, 1]
-            total[i] += w_dst * formation + w_centre * (cx * cx + cy * cy)
+            cx, cy = x[i] - centre_x, y[i] - centre_y
+            total[i] = fma(w_dst, formation[i], fma(w_centre, fma(cx, cx, cy * cy), total[i]))
         # each penalty sums over its points in order, point outermost: the candidates stay
         # innermost, as in the integration above
         if w_collision > 0.0:

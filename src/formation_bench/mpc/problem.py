@@ -19,12 +19,12 @@ import numpy as np
 from formation_bench.mpc.cost import (
     Penalties,
     block_map,
-    compiled_cost,
     pack_problem,
     packed_batch_cost,
     reference_cost,
 )
 from formation_bench.mpc.model import coast, rollout
+from formation_bench.mpc.native_cost import cost_function
 from formation_bench.mpc.scenario import EstimateExtension, Scenario
 from formation_bench.optimizers.base import Bounds
 from formation_bench.optimizers.compiled import CompiledObjective
@@ -204,8 +204,8 @@ class LocalProblem:
     @functools.cached_property
     def compiled(self) -> CompiledObjective:
         """The same cost as a compiled objective, for optimisers with a compiled solve loop."""
-        cost = compiled_cost()
-        return CompiledObjective(cost.address, self.packed, cost)
+        cost = cost_function()
+        return CompiledObjective(cost.address, self.packed, cost.owner)
 
     def reference_cost(self, decision: np.ndarray) -> float:
         """Eq. (14) for one decision vector by the plain reference implementation."""

@@ -12,10 +12,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from formation_bench.mpc.cost import Penalties, compiled_cost, pack_problem, packed_batch_cost
+from formation_bench.mpc.cost import Penalties, pack_problem, packed_batch_cost
 from formation_bench.mpc.loop import ProgressCallback, Trace, simulate
 from formation_bench.mpc.metrics import compute_metrics
 from formation_bench.mpc.model import rollout
+from formation_bench.mpc.native_cost import cost_function
 from formation_bench.pipeline import outputs
 from formation_bench.pipeline.record import Provenance, RunDescription, RunRecord
 from formation_bench.pipeline.spec import RunSpec
@@ -68,7 +69,7 @@ def warm_up_kernels() -> None:
         1.0, 1.0, np.zeros((1, 2, 2)), Penalties(),
     )  # fmt: skip
     packed_batch_cost(np.zeros((2, 2)), packed)
-    compiled_cost()
+    cost_function()
 
 
 def execute(spec: RunSpec, *, progress: ProgressCallback | None = None) -> RunOutcome:

@@ -1,0 +1,83 @@
+"""The C cost kernel behind the compiled-objective handle, and the choice between kernels.
+
+``_cost_kernel.c`` is :func:`formation_bench.mpc.cost.batch_cost` in C: the same packed
+problem, the same calling convention and the same IEEE operations, so its costs are the
+numba kernel's to the bit (a test checks this on every scenario family). It is compiled
+at install for the installing machine (``setup.py``); where no C compiler works, the
+package installs without it and the numba kernel serves, with the same results, more
+slowly (docs/design.md, "The native cost kernel", has the figures).
+
+The environment variable :data:`KERNEL_VARIABLE` chooses: ``auto`` (the default: C when
+built, else numba), ``c`` (C, or an error saying it was not built) or ``numba``.
+"""
+
+from __future__ import annotations
+
+import enum
+import functools
+import importlib
+import os
+from dataclasses import dataclass
+from typing import Any
+
+KERNEL_VARIABLE = "FORMATION_BENCH_COST_KERNEL"
+"""Environment variable choosing the cost kernel (see :class:`CostKernel`)."""
+
+
+class CostKernel(enum.Enum):
+    """Which implementation computes the cost in compiled solve loops."""
+
+    AUTO = "auto"
+    """C when it was built at install, else numba."""
+    C = "c"
+    """The C kernel; an error if it was not built."""
+    NUMBA = "numba"
+    """The numba kernel (``formation_bench.mpc.cost.packed_batch_cost``)."""
+
+
+@dataclass(frozen=True)
+class CostFunction:
+    """A compiled cost's C function: its address, what keeps it alive, and its name."""
+
+    address: int
+    owner: Any
+    kernel: CostKernel
+    """:attr:`CostKernel.C` or :attr:`CostKernel.NUMBA`: the kernel this is."""
+
+
+def chosen_kernel() -> CostKernel:
+    """The kernel :data:`KERNEL_VARIABLE` asks for (``auto`` when it is unset)."""
+    value = os.environ.get(KERNEL_VARIABLE, CostKernel.AUTO.value).strip().lower()
+    try:
+        return CostKernel(value)
+    except ValueError:
+        allowed = ", ".join(kernel.value for kernel in CostKernel)
+        raise ValueError(f"{KERNEL_VARIABLE} must be one of {allowed}, got {value!r}") from None
+
+
+@functools.cache
+def native_cost_address() -> int | None:
+    """Address of the C kernel's function, or None when it was not built at install."""
+    try:
+        module = importlib.import_module("formation_bench.mpc._cost_kernel")
+    except ImportError:
+        return None
+    return int(module.cost_address)
+
+
+def cost_function(kernel: CostKernel | None = None) -> CostFunction:
+    """The C function of ``kernel`` (default: :func:`chosen_kernel`) with the compiled-cost
+    signature; the numba one is compiled, or loaded from numba's cache, on first use."""
+    kernel = chosen_kernel() if kernel is None else kernel
+    address = native_cost_address() if kernel is not CostKernel.NUMBA else None
+    if address is not None:
+        return CostFunction(address, None, CostKernel.C)
+    if kernel is CostKernel.C:
+        raise RuntimeError(
+            f"{KERNEL_VARIABLE}=c, but the C cost kernel was not built when formation-bench "
+            "was installed (reinstall with a working C compiler, or set it to auto or numba)"
+        )
+    from formation_bench.mpc.cost import compiled_cost
+
+    numba_cost = compiled_cost()
+    return CostFunction(numba_cost.address, numba_cost, CostKernel.NUMBA)
