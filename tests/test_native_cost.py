@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from formation_bench.instances.library import shipped
+from formation_bench.mpc import native_cost
 from formation_bench.mpc.cost import (
     NO_PENALTIES,
     Penalties,
@@ -151,5 +152,9 @@ def test_kernel_choice_from_the_environment(monkeypatch):
 def test_asking_for_c_without_it_says_how_to_get_it(monkeypatch):
     monkeypatch.setenv(KERNEL_VARIABLE, "c")
     monkeypatch.setattr("formation_bench.mpc.native_cost.native_cost_address", lambda: None)
-    with pytest.raises(RuntimeError, match="not built"):
-        cost_function()
+    native_cost._cost_function.cache_clear()
+    try:
+        with pytest.raises(RuntimeError, match="not built"):
+            cost_function()
+    finally:
+        native_cost._cost_function.cache_clear()

@@ -190,3 +190,16 @@ def test_the_scenario_module_and_the_formation_library_import_one_way():
     }
     assert not any(name and name.startswith("formation_bench.mpc.scenario") for name in imported)
     assert "swarm-10" in SCENARIOS and SCENARIOS["swarm-10"].n_uav == 10
+
+
+def test_a_scenario_hash_is_its_fields_and_does_not_travel_in_a_pickle():
+    import pickle
+
+    scenario = get_scenario("paper")
+    equal = get_scenario("paper").with_overrides(n_steps=scenario.timing.n_steps)
+    assert scenario == equal and hash(scenario) == hash(equal)
+    fields = tuple(getattr(scenario, f.name) for f in dataclasses.fields(scenario))
+    assert hash(scenario) == hash(fields)
+    copy = pickle.loads(pickle.dumps(scenario))
+    assert "_hash" not in copy.__dict__ and copy == scenario and hash(copy) == hash(scenario)
+    assert hash(scenario.with_overrides(n_steps=10)) != hash(scenario)

@@ -1,12 +1,16 @@
 """Each trigger condition of eqs. (15)-(19) on hand-built cases."""
 
 import numpy as np
+import pytest
 
 from formation_bench.mpc.trigger import (
     TriggerDecision,
     control_condition,
     distance_condition,
     expiry_condition,
+    numpy_control_condition,
+    numpy_distance_condition,
+    numpy_tracking_condition,
     tracking_condition,
 )
 
@@ -62,3 +66,36 @@ def test_decision_fires_on_any_condition():
         flags = [False] * 4
         flags[k] = True
         assert TriggerDecision(*flags).fire
+
+
+@pytest.mark.parametrize("n_neighbours", [0, 1, 2, 5, 9, 24])
+@pytest.mark.parametrize("window", [1, 3])
+def test_compiled_conditions_are_numpy_conditions(n_neighbours, window):
+    """The compiled conditions decide as the numpy forms do, thresholds at the very errors
+    included, on views laid out as the closed loop passes them."""
+    rng = np.random.default_rng([n_neighbours, window])
+    for _ in range(40):
+        own = rng.normal(0.0, 30.0, (window + 2, 2))[:window]
+        stacked = rng.normal(0.0, 30.0, (n_neighbours, window + 2, 2))
+        neighbours = stacked[:, :window]
+        desired = np.transpose(rng.normal(0.0, 10.0, (window, n_neighbours, 2)), (1, 0, 2))
+        reference = rng.normal(0.0, 30.0, (window, 2))
+        offsets = rng.normal(0.0, 10.0, (window, 2))
+        errors = np.linalg.norm(own[None] - neighbours - desired, axis=-1).ravel()
+        for eps in (*errors[:3], 1e-9, 1e9):
+            assert distance_condition(own, neighbours, desired, eps) == numpy_distance_condition(
+                own, neighbours, desired, eps
+            )
+        for offset_sum in (None, offsets):
+            centre = own + neighbours.sum(axis=0) - (0.0 if offset_sum is None else offset_sum)
+            group = n_neighbours + 1
+            gaps = np.linalg.norm(centre / group - reference, axis=-1)
+            for eps in (*gaps, 1e-9, 1e9):
+                args = (own, neighbours, reference, group, eps, offset_sum)
+                assert tracking_condition(*args) == numpy_tracking_condition(*args)
+        control = rng.uniform(-8.0, 8.0, 2)
+        lower, upper = np.array([-7.0, -0.25]), np.array([7.0, 0.25])
+        for eta in (0.5, 0.9, 1.0, abs(control[0]) / 7.0):
+            assert control_condition(control, lower, upper, eta) == numpy_control_condition(
+                control, lower, upper, eta
+            )

@@ -96,6 +96,11 @@ class Trace:
 
 ProgressCallback = Callable[[int, int], None]
 
+TRACK_HORIZONS = 2
+"""Horizons (of H + 1 instants) a plan's estimate is computed over at once: its own plan is
+re-solved at the latest after one horizon, so two cover every instant it is used at unless
+plans are lost or late."""
+
 AT_BOUND_TOLERANCE = 1e-6
 """A planned control this fraction of its bounds' range from a bound counts as at it (an
 interior-point solver stops a little inside an active bound)."""
@@ -243,6 +248,9 @@ class ClosedLoop:
         ]
         self.network = Network(scenario, self.plans, self.streams.network)
         self.disturbances = Disturbances(scenario, self.streams.wind, self.streams.noise)
+        self.tracks: dict[int, tuple[Plan, np.ndarray]] = {}
+        """By plan id: the plan and its estimated positions from its start over
+        :data:`TRACK_HORIZONS` horizons, of which each instant's estimate is a slice."""
 
     def control_period(self, c: int) -> None:
         """The period from instant ``c``: plans arrive, every UAV decides whether to re-solve
@@ -265,6 +273,7 @@ class ClosedLoop:
             published[i] = self.solve(c, i, known, measured[i])
             log.plans_lost[c] += network.send(c, i, published[i], listens[:, i])
         self.plans = published
+        self.forget_old_tracks()
         self.apply_controls(c)
 
     def neighbourhood(
@@ -273,13 +282,10 @@ class ClosedLoop:
         """UAV ``i``'s view at instant ``c``; estimates are computed once per plan and kept in
         ``estimated`` (by the plan's id) for the other UAVs of the instant."""
         horizon, offsets, held = self.horizon, self.offsets, self.network.held[i]
-        extension = self.scenario.communication.estimate_extension
         heard = [int(j) for j in np.flatnonzero(listens[i])]
         for plan in (self.plans[i], *(held[j] for j in heard)):
             if id(plan) not in estimated:
-                estimated[id(plan)] = estimate_positions(
-                    plan, c, horizon + 1, self.period, extension
-                )
+                estimated[id(plan)] = self.estimate(plan, c)
         own = estimated[id(self.plans[i])]
         others = (
             np.stack([estimated[id(held[j])] for j in heard])
@@ -294,6 +300,34 @@ class ClosedLoop:
             offsets[c : c + horizon + 1, [i, *heard]].sum(axis=1) if self.group_centre else None
         )
         return Neighbourhood(heard, own, others, desired_relative, group_offsets)
+
+    def estimate(self, plan: Plan, c: int) -> np.ndarray:
+        """``plan``'s estimated positions at instants ``c .. c + H`` (read-only).
+
+        A plan is estimated once, from its start over :data:`TRACK_HORIZONS` horizons, and
+        each instant takes its slice; every position depends on its instant alone, so the
+        slice is what :func:`estimate_positions` computes at ``c``, to the bit. A plan held
+        for longer (plans lost or late) is estimated afresh.
+        """
+        horizon, extension = self.horizon, self.scenario.communication.estimate_extension
+        entry = self.tracks.get(id(plan))
+        if entry is None or entry[0] is not plan:
+            track = estimate_positions(
+                plan, plan.start_step, TRACK_HORIZONS * (horizon + 1), self.period, extension
+            )
+            track.setflags(write=False)
+            entry = self.tracks[id(plan)] = (plan, track)
+        offset = c - plan.start_step
+        if 0 <= offset and offset + horizon + 1 <= entry[1].shape[0]:
+            return entry[1][offset : offset + horizon + 1]
+        return estimate_positions(plan, c, horizon + 1, self.period, extension)
+
+    def forget_old_tracks(self) -> None:
+        """Drop the tracks of plans that no UAV holds any more."""
+        live = {id(plan) for plan in self.plans}
+        live.update(id(plan) for row in self.network.held for plan in row)
+        for key in [key for key in self.tracks if key not in live]:
+            del self.tracks[key]
 
     def trigger_decision(self, c: int, i: int, known: Neighbourhood) -> TriggerDecision:
         """Which of the trigger's conditions hold for UAV ``i`` at instant ``c``; at c = 0 no UAV

@@ -47,7 +47,12 @@ class CostFunction:
 
 def chosen_kernel() -> CostKernel:
     """The kernel :data:`KERNEL_VARIABLE` asks for (``auto`` when it is unset)."""
-    value = os.environ.get(KERNEL_VARIABLE, CostKernel.AUTO.value).strip().lower()
+    return _kernel_named(os.environ.get(KERNEL_VARIABLE, CostKernel.AUTO.value))
+
+
+@functools.cache
+def _kernel_named(text: str) -> CostKernel:
+    value = text.strip().lower()
     try:
         return CostKernel(value)
     except ValueError:
@@ -68,7 +73,12 @@ def native_cost_address() -> int | None:
 def cost_function(kernel: CostKernel | None = None) -> CostFunction:
     """The C function of ``kernel`` (default: :func:`chosen_kernel`) with the compiled-cost
     signature; the numba one is compiled, or loaded from numba's cache, on first use."""
-    kernel = chosen_kernel() if kernel is None else kernel
+    return _cost_function(chosen_kernel() if kernel is None else kernel)
+
+
+@functools.cache
+def _cost_function(kernel: CostKernel) -> CostFunction:
+    # once per kernel and process: every solve's problem asks for it
     address = native_cost_address() if kernel is not CostKernel.NUMBA else None
     if address is not None:
         return CostFunction(address, None, CostKernel.C)

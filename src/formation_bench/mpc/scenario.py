@@ -233,6 +233,21 @@ class Scenario:
                 f"neighbour before the run ends), got {communication.delay_steps}"
             )
 
+    def __hash__(self) -> int:
+        # every solve looks its problem's decision space and penalties up by scenario: hashing
+        # every field each time cost more than the lookup saves
+        cached = self.__dict__.get("_hash")
+        if cached is None:
+            cached = hash(tuple(getattr(self, f.name) for f in dataclasses.fields(self)))
+            object.__setattr__(self, "_hash", cached)
+        return cached
+
+    def __getstate__(self) -> dict[str, Any]:
+        # a string's hash differs between processes, so the cached one does not travel
+        state = dict(self.__dict__)
+        state.pop("_hash", None)
+        return state
+
     # --- the flat view: every setting by its name ---------------------------------------------
 
     @classmethod
