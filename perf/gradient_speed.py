@@ -19,6 +19,15 @@ B. **same recorded problems**: the 720 problems of one modified-BSO run with
 Runs are interleaved (A for every optimiser, then again) ``--repeats`` times and
 pooled; CasADi and numba are built before anything is timed. Wall-clock times
 on a shared machine: the load average is printed with the table.
+
+C. **set-up apart** (``ipopt`` and ``ltv-osqp``, from A and B): the median of each
+   part of a call as the solvers report it in ``OptimizeResult.info``. ``ltv-osqp``:
+   the OSQP set-up (calls that set a workspace up) and OSQP's own solve time; ``ipopt``:
+   the preparation before ``nlpsol`` (the problem's parameters and the warm start) and
+   the ``nlpsol`` call split into CasADi's evaluations and IPOPT's own time. IPOPT
+   rebuilds its algorithm on every call; that set-up is measured apart by solves with
+   ``max_iter = 0`` of the recorded problems (IPOPT's own time of a call that stops
+   before its first iteration).
 """
 
 from __future__ import annotations
@@ -79,7 +88,7 @@ def measure(
         "recorded": {},
     }
     loop: dict[str, dict[str, list]] = {
-        name: {"loop": [], "optimizer": [], "iterations": [], "nfev": [], "metrics": []}
+        name: {"loop": [], "optimizer": [], "iterations": [], "nfev": [], "metrics": [], "info": []}
         for name in names
     }
     for repeat in range(repeats):
@@ -91,6 +100,7 @@ def measure(
             record["optimizer"].extend(solve.seconds for solve in timed.solves)
             record["iterations"].extend(int(solve.result.nit) for solve in timed.solves)
             record["nfev"].extend(int(solve.result.nfev) for solve in timed.solves)
+            record["info"].extend((solve.seconds, solve.result.info) for solve in timed.solves)
             metrics = compute_metrics(trace).columns() if not quick else {}
             record["metrics"].append(
                 {
@@ -111,22 +121,98 @@ def measure(
             "nfev_median": float(np.median(record["nfev"])),
             "runs": record["metrics"],
         }
+        parts = _parts(name, record["info"])
+        if parts:
+            results.setdefault("parts", {})[f"A {name}"] = parts
 
     instants = record_instants(
         scenario, get_optimizer("modified-bso"), list(range(scenario.timing.n_steps)), seed=0
     )
     recorded: dict[str, list[float]] = {name: [] for name in names}
+    recorded_info: dict[str, list[tuple[float, dict[str, Any]]]] = {name: [] for name in names}
     for repeat in range(repeats):
         for name, optimizer in optimizers.items():
             rng = np.random.default_rng(repeat)
             for inst in instants:
                 start = time.perf_counter()
-                optimizer.minimize(inst.problem, inst.problem.bounds, rng, None, inst.warm_start)
-                recorded[name].append(time.perf_counter() - start)
+                result = optimizer.minimize(
+                    inst.problem, inst.problem.bounds, rng, None, inst.warm_start
+                )
+                seconds = time.perf_counter() - start
+                recorded[name].append(seconds)
+                recorded_info[name].append((seconds, result.info))
     for name, times in recorded.items():
         results["recorded"][name] = _summary(times)
+        parts = _parts(name, recorded_info[name])
+        if parts:
+            results.setdefault("parts", {})[f"B {name}"] = parts
+    if "ipopt" in optimizers:
+        results["ipopt_setup"] = ipopt_setup(optimizers["ipopt"], instants)
     results["load_average_after"] = list(os.getloadavg())
     return results
+
+
+def _median_ms(values: list[float]) -> float:
+    return float(1e3 * np.median(values)) if values else float("nan")
+
+
+def _parts(name: str, calls: list[tuple[float, dict[str, Any]]]) -> dict[str, float] | None:
+    """Median parts of the calls of ``ipopt`` or ``ltv-osqp`` (ms), from their ``info``."""
+    if not calls:
+        return None
+    if name == "ltv-osqp":
+        setups = [info["osqp_setup_time_s"] for _, info in calls if info["osqp_setup"]]
+        return {
+            "minimize_ms": _median_ms([seconds for seconds, _ in calls]),
+            "setup_share": len(setups) / len(calls),
+            "osqp_setup_ms": _median_ms(setups),
+            "osqp_solve_ms": _median_ms([info["osqp_run_time_s"] for _, info in calls]),
+            "rest_ms": _median_ms(
+                [
+                    seconds
+                    - info["osqp_run_time_s"]
+                    - (info["osqp_setup_time_s"] if info["osqp_setup"] else 0.0)
+                    for seconds, info in calls
+                ]
+            ),
+        }
+    if name == "ipopt":
+        return {
+            "minimize_ms": _median_ms([seconds for seconds, _ in calls]),
+            "preparation_ms": _median_ms([info["setup_time_s"] for _, info in calls]),
+            "ipopt_wall_ms": _median_ms([info["ipopt_wall_s"] for _, info in calls]),
+            "evaluations_ms": _median_ms([info["evaluation_wall_s"] for _, info in calls]),
+            "ipopt_own_ms": _median_ms([info["ipopt_own_s"] for _, info in calls]),
+            "iterations_median": float(np.median([info["iterations"] for _, info in calls])),
+        }
+    return None
+
+
+def ipopt_setup(optimizer: Any, instants: list[Any]) -> dict[str, float]:
+    """IPOPT's set-up per call: solves with ``max_iter = 0`` of the recorded problems (ms).
+
+    Such a call builds IPOPT's algorithm and evaluates the start, then stops before its first
+    iteration; its ``t_wall_total`` less the evaluations is IPOPT's own set-up.
+    """
+    from formation_bench.mpc.solvers.ipopt_solver import call_times
+    from formation_bench.mpc.solvers.problem_shape import ProblemShape, pack_parameters
+
+    own, total = [], []
+    for inst in instants:
+        problem = inst.problem
+        shape = ProblemShape.of(problem)
+        nlpsol = optimizer.build(shape, 0).nlpsol
+        start = time.perf_counter()
+        nlpsol(
+            x0=inst.warm_start,
+            p=pack_parameters(problem, shape),
+            lbx=problem.bounds.lower,
+            ubx=problem.bounds.upper,
+        )
+        times = call_times(nlpsol.stats(), time.perf_counter() - start)
+        own.append(times["ipopt_own_s"])
+        total.append(times["ipopt_wall_s"])
+    return {"ipopt_own_ms": _median_ms(own), "ipopt_wall_ms": _median_ms(total)}
 
 
 def format_results(results: dict[str, Any]) -> str:
@@ -169,6 +255,47 @@ def format_results(results: dict[str, Any]) -> str:
         lines.append(
             f"| {name} | {row['n']} | {row['median_ms']:.2f} ms | {row['p95_ms']:.2f} ms |"
         )
+    parts = results.get("parts", {})
+    osqp_rows = {k: v for k, v in parts.items() if k.endswith("ltv-osqp")}
+    ipopt_rows = {k: v for k, v in parts.items() if k.endswith("ipopt")}
+    if osqp_rows:
+        lines += [
+            "",
+            "C. ltv-osqp, set-up apart (medians; A closed loop, B recorded problems):",
+            "",
+            "| run | median minimize | calls that set OSQP up | OSQP set-up (those calls) "
+            "| OSQP solve | rest (linearisation, cost, Python) |",
+            "|---|---|---|---|---|---|",
+        ]
+        for key, row in osqp_rows.items():
+            lines.append(
+                f"| {key} | {row['minimize_ms']:.3f} ms | {100 * row['setup_share']:.0f} % "
+                f"| {row['osqp_setup_ms']:.3f} ms | {row['osqp_solve_ms']:.3f} ms "
+                f"| {row['rest_ms']:.3f} ms |"
+            )
+    if ipopt_rows:
+        lines += [
+            "",
+            "C. ipopt, set-up apart (medians; A closed loop, B recorded problems):",
+            "",
+            "| run | median minimize | preparation | nlpsol call | of it evaluations "
+            "| of it IPOPT's own | iterations |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for key, row in ipopt_rows.items():
+            lines.append(
+                f"| {key} | {row['minimize_ms']:.3f} ms | {row['preparation_ms']:.3f} ms "
+                f"| {row['ipopt_wall_ms']:.3f} ms | {row['evaluations_ms']:.3f} ms "
+                f"| {row['ipopt_own_ms']:.3f} ms | {row['iterations_median']:g} |"
+            )
+    if "ipopt_setup" in results:
+        setup = results["ipopt_setup"]
+        lines += [
+            "",
+            f"IPOPT's set-up per call (max_iter = 0 on the recorded problems, medians): "
+            f"{setup['ipopt_own_ms']:.3f} ms of IPOPT's own time, "
+            f"{setup['ipopt_wall_ms']:.3f} ms for the whole call (CasADi's t_wall_total).",
+        ]
     return "\n".join(lines)
 
 

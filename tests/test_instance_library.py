@@ -129,9 +129,16 @@ def test_the_plain_eq14_at_x_star_gives_j_star_at_the_stated_tolerance(everythin
     for instance in everything:
         problem = instance.problem
         assert problem.bounds.contains(instance.x_star)
-        # J* is the compiled cost at x*, exactly
-        assert problem(instance.x_star[None])[0] == instance.j_star
-        assert problem(instance.warm_start[None])[0] == instance.warm_cost >= instance.j_star
+        # J* and the warm cost are the compiled cost at x* and at the warm start as the
+        # library was built: the kernel of that day, whose sums the fused kernel now rounds
+        # differently (at most 3.3e-13 relative, or 2.2e-17 absolute on a cost of 3.5e-6)
+        assert problem(instance.x_star[None])[0] == pytest.approx(
+            instance.j_star, rel=1e-12, abs=1e-15
+        )
+        assert problem(instance.warm_start[None])[0] == pytest.approx(
+            instance.warm_cost, rel=1e-12, abs=1e-15
+        )
+        assert instance.warm_cost >= instance.j_star
         plain = problem.reference_cost(instance.x_star)
         assert abs(plain - instance.j_star) <= J_STAR_RTOL * instance.j_star + J_STAR_ATOL
 

@@ -16,6 +16,7 @@ handles once:
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -46,21 +47,52 @@ def warm_start_of(problem: LocalProblem, bounds: Bounds, x0: np.ndarray | None) 
     return x0
 
 
+SOLVER_CACHE_ENTRIES = 256
+"""Most entries an optimiser's solver cache keeps (built functions, solvers, per-UAV state).
+
+The paper needs a handful; a swarm on a range graph keys one per UAV and neighbour count. The
+least recently used entry goes first: an entry of the current run is dropped only after this
+many others were used since its own last use, so what a run keeps depends on that run alone.
+"""
+
+
+class LruCache(OrderedDict[Any, Any]):
+    """A dict that keeps at most ``capacity`` entries, dropping the least recently used."""
+
+    def __init__(self, capacity: int = SOLVER_CACHE_ENTRIES) -> None:
+        super().__init__()
+        self.capacity = capacity
+
+    def get(self, key: Any, default: Any = None) -> Any:
+        if key not in self:
+            return default
+        self.move_to_end(key)
+        return self[key]
+
+    def __setitem__(self, key: Any, value: Any) -> None:
+        super().__setitem__(key, value)
+        self.move_to_end(key)
+        while len(self) > self.capacity:
+            self.popitem(last=False)
+
+
 class SolverCacheMixin:
-    """Solvers kept between calls in a private dict that is no dataclass field.
+    """Solvers kept between calls in a private bounded cache that is no dataclass field.
 
     The built solvers live in the instance's ``__dict__`` but outside
     :func:`dataclasses.fields`, so they never enter the configuration
     (equality, hashing, ``repr``, the sweep's config hash); pickling (e.g. to a
     sweep worker) and :func:`copy.deepcopy` drop them, and the copy rebuilds
-    its solvers on first use.
+    its solvers on first use. The cache is an :class:`LruCache` of
+    :data:`SOLVER_CACHE_ENTRIES` entries, so a long sweep over many problem shapes does not
+    grow it without bound.
     """
 
     @property
-    def _solver_cache(self) -> dict[Any, Any]:
+    def _solver_cache(self) -> LruCache:
         cache = self.__dict__.get("_solver_cache_dict")
         if cache is None:
-            cache = {}
+            cache = LruCache()
             object.__setattr__(self, "_solver_cache_dict", cache)
         return cache
 
