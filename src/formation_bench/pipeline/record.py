@@ -150,9 +150,15 @@ class Provenance:
     osqp_version: str | None = column("osqp version", timing=True)
     cvxpy_version: str | None = column("cvxpy version (None: not installed)", timing=True)
     ioh_version: str | None = column("ioh version (None: not installed)", timing=True)
+    cost_kernel: str | None = column(
+        "cost kernel the compiled solve loops called, c or numba (the same numbers, not the "
+        "same speed; None: stored before it was recorded)",
+        timing=True,
+    )
 
     @classmethod
     def here(cls, run_time_s: float) -> Provenance:
+        from formation_bench.mpc.native_cost import cost_function
         from formation_bench.pipeline.provenance import cpu_model, git_info, now, package_versions
 
         info = git_info()
@@ -169,6 +175,7 @@ class Provenance:
             osqp_version=versions["osqp"],
             cvxpy_version=versions["cvxpy"],
             ioh_version=versions["ioh"],
+            cost_kernel=cost_function().kernel.value,
         )
 
 
