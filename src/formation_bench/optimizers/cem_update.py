@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit
 
 from formation_bench.optimizers.ask_tell import BlockSource
-from formation_bench.optimizers.population import ROWS_AHEAD
+from formation_bench.optimizers.population import ROWS_AHEAD, standard_normals
 
 UNPLANNED = 2**62
 """A ``t_max`` no iteration reaches: only the evaluations left end the iterations."""
@@ -91,7 +91,7 @@ class SampleNormals(BlockSource):
             drawn, mean = batch_size.py_func(s, iteration + len(sizes), left)
             sizes.append(drawn)
             left -= drawn + mean
-        flat = rng.standard_normal(sum(sizes) * d)
+        flat = standard_normals(rng, (sum(sizes) * d,))
         normals = np.zeros((len(sizes), s.population_size, d))
         start = 0
         for row, drawn in enumerate(sizes):

@@ -47,7 +47,7 @@ from formation_bench.optimizers.cma_ops import (
     new_run,
     run_parameters,
 )
-from formation_bench.optimizers.population import ROWS_AHEAD, RandomAhead
+from formation_bench.optimizers.population import ROWS_AHEAD, RandomAhead, standard_normals
 
 
 class CampaignSettings(Protocol):
@@ -185,7 +185,7 @@ def draw(
     left = min(t_max - iteration + 1, -(-left_evaluations // lam))
     rows = min(max(left, 1), ROWS_AHEAD)
     uniforms = rng.random((rows, lam, n)) if resample else None
-    normals = rng.standard_normal((rows, lam, n))
+    normals = standard_normals(rng, (rows, lam, n))
     return RandomAhead(iteration, normals if uniforms is None else uniforms, normals)
 
 

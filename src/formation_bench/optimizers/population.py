@@ -150,6 +150,33 @@ def greedy_select(
     return x, f, improved
 
 
+COMPILED_NORMALS_FROM = 2000
+"""Draws of at least this many standard normals are made by :func:`_fill_standard_normals`."""
+
+
+@njit(cache=True)
+def _fill_standard_normals(rng: np.random.Generator, out: np.ndarray) -> None:
+    for i in range(out.shape[0]):
+        out[i] = rng.standard_normal()
+
+
+def standard_normals(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    """``rng.standard_normal(shape)``: the same numbers, and ``rng`` left in the same state.
+
+    numba's Generator runs numpy's own ziggurat on the same bit generator, one number after
+    the other as numpy fills an array, in about a third of numpy's time (2.8 against 8.5 ns
+    per number on the development machine); handing it the Generator costs about 5 µs, so
+    only draws of :data:`COMPILED_NORMALS_FROM` numbers or more go to it. A test checks both
+    paths against ``rng.standard_normal``.
+    """
+    size = math.prod(shape)
+    if size < COMPILED_NORMALS_FROM:
+        return rng.standard_normal(shape)
+    out = np.empty(size)
+    _fill_standard_normals(rng, out)
+    return out.reshape(shape)
+
+
 ROWS_AHEAD = 64
 """Most iterations whose random numbers one Generator call draws."""
 
@@ -193,7 +220,7 @@ def iteration_randoms(
     if not 0 <= row < block.uniforms.shape[0]:
         rows = min(max(t_max - iteration + 1, 1), ROWS_AHEAD)
         uniforms = rng.random((rows, block.uniforms.shape[1]))
-        normals = rng.standard_normal((rows, *block.normals.shape[1:]))
+        normals = standard_normals(rng, (rows, *block.normals.shape[1:]))
         block, row = RandomAhead(iteration, uniforms, normals), 0
     return block, block.uniforms[row], block.normals[row]
 
