@@ -51,6 +51,17 @@ static inline __attribute__((always_inline)) void fused_cos_sin(double angle, do
     *c = ((n + 1) & 2) ? -cos_a : cos_a;
 }
 
+/* cost._add_intrusion: penalty[i] += max(0, radius - |(px_i, py_i) - (ox, oy)|)^2 */
+static inline __attribute__((always_inline)) void add_intrusion(
+    const int W, const double *restrict px, const double *restrict py, double ox, double oy,
+    double radius, double *restrict penalty) {
+    for (int i = 0; i < W; i++) {
+        const double dx = px[i] - ox, dy = py[i] - oy;
+        const double gap = radius - sqrt(dx * dx + dy * dy);
+        penalty[i] = gap > 0.0 ? penalty[i] + gap * gap : penalty[i];
+    }
+}
+
 /* cost.batch_cost for candidates first .. first + W - 1 (lanes past n - 1 repeat the last
  * candidate and are not written) */
 static inline __attribute__((always_inline)) void cost_of_tile(
@@ -153,26 +164,17 @@ static inline __attribute__((always_inline)) void cost_of_tile(
         if (w_collision > 0.0) {
             for (int i = 0; i < W; i++) penalty[i] = 0.0;
             for (int64_t j = 0; j < n_neighbours; j++) {
-                const double ox = neighbour_positions[(j * horizon + k) * 2];
-                const double oy = neighbour_positions[(j * horizon + k) * 2 + 1];
-                for (int i = 0; i < W; i++) {
-                    const double dx = px[i] - ox, dy = py[i] - oy;
-                    const double gap = safety_radius - sqrt(dx * dx + dy * dy);
-                    penalty[i] = gap > 0.0 ? penalty[i] + gap * gap : penalty[i];
-                }
+                add_intrusion(W, px, py, neighbour_positions[(j * horizon + k) * 2],
+                              neighbour_positions[(j * horizon + k) * 2 + 1], safety_radius,
+                              penalty);
             }
             for (int i = 0; i < W; i++) total[i] += w_collision * penalty[i];
         }
         if (w_obstacle > 0.0) {
             for (int i = 0; i < W; i++) penalty[i] = 0.0;
             for (int64_t o = 0; o < n_obstacles; o++) {
-                const double ox = obstacles[3 * o], oy = obstacles[3 * o + 1];
-                const double radius = obstacles[3 * o + 2];
-                for (int i = 0; i < W; i++) {
-                    const double dx = px[i] - ox, dy = py[i] - oy;
-                    const double gap = radius - sqrt(dx * dx + dy * dy);
-                    penalty[i] = gap > 0.0 ? penalty[i] + gap * gap : penalty[i];
-                }
+                add_intrusion(W, px, py, obstacles[3 * o], obstacles[3 * o + 1],
+                              obstacles[3 * o + 2], penalty);
             }
             for (int i = 0; i < W; i++) total[i] += w_obstacle * penalty[i];
         }

@@ -21,7 +21,6 @@ from __future__ import annotations
 import math
 
 import numba as nb
-import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
@@ -43,6 +42,7 @@ from formation_bench.mpc.model import (
     _S5,
     _S6,
     _TWO_OVER_PI,
+    in_quadrant,
 )
 
 
@@ -75,12 +75,7 @@ def fused_cos_sin(angle: float) -> tuple[float, float]:
     sin_r = fma(r * z, fma(z, fma(z, fma(z, fma(z, fma(z, _S6, _S5), _S4), _S3), _S2), _S1), r)
     cos_poly = fma(z, fma(z, fma(z, fma(z, fma(z, _C6, _C5), _C4), _C3), _C2), _C1)
     cos_r = 1.0 - fma(-z * z, cos_poly, 0.5 * z)
-    n = np.int64(quadrant) & 3
-    sin_a = cos_r if n & 1 else sin_r
-    cos_a = sin_r if n & 1 else cos_r
-    sin_a = -sin_a if n & 2 else sin_a
-    cos_a = -cos_a if (n + 1) & 2 else cos_a
-    return cos_a, sin_a
+    return in_quadrant(quadrant, cos_r, sin_r)
 
 
 @nb.njit(cache=True, inline="always")

@@ -90,6 +90,12 @@ def reduced_cos_sin(angle: float) -> tuple[float, float]:
     cos_r = 1.0 - (
         0.5 * z - z * z * (_C1 + z * (_C2 + z * (_C3 + z * (_C4 + z * (_C5 + z * _C6)))))
     )
+    return in_quadrant(quadrant, cos_r, sin_r)
+
+
+@nb.njit(cache=True, inline="always")
+def in_quadrant(quadrant: int, cos_r: float, sin_r: float) -> tuple[float, float]:
+    """``(cos, sin)`` of ``r + quadrant * pi / 2`` from those of ``r``, by selects alone."""
     n = np.int64(quadrant) & 3
     sin_a = cos_r if n & 1 else sin_r
     cos_a = sin_r if n & 1 else cos_r
