@@ -97,9 +97,9 @@ class Trace:
 ProgressCallback = Callable[[int, int], None]
 
 TRACK_HORIZONS = 2
-"""Horizons (of H + 1 instants) a plan's estimate is computed over at once: its own plan is
+"""Horizons (of H + 1 instants) a plan's estimate is computed over at first: its own plan is
 re-solved at the latest after one horizon, so two cover every instant it is used at unless
-plans are lost or late."""
+plans are lost or late (then the estimate is extended)."""
 
 AT_BOUND_TOLERANCE = 1e-6
 """A planned control this fraction of its bounds' range from a bound counts as at it (an
@@ -262,10 +262,9 @@ class ClosedLoop:
         listens = listening(self.scenario, log.states[c, :, :2])
         log.neighbours[c] = listens
         measured = self.disturbances.measure(log.states[c])
-        estimated: dict[int, np.ndarray] = {}  # positions at c .. c + H, once per plan
         published = list(self.plans)
         for i in range(self.n_uav):
-            known = self.neighbourhood(c, i, listens, estimated)
+            known = self.neighbourhood(c, i, listens)
             decision = self.trigger_decision(c, i, known)
             log.reasons[c, i] = decision.as_tuple()
             if self.trigger_on and not decision.fire:
@@ -276,19 +275,13 @@ class ClosedLoop:
         self.forget_old_tracks()
         self.apply_controls(c)
 
-    def neighbourhood(
-        self, c: int, i: int, listens: np.ndarray, estimated: dict[int, np.ndarray]
-    ) -> Neighbourhood:
-        """UAV ``i``'s view at instant ``c``; estimates are computed once per plan and kept in
-        ``estimated`` (by the plan's id) for the other UAVs of the instant."""
+    def neighbourhood(self, c: int, i: int, listens: np.ndarray) -> Neighbourhood:
+        """UAV ``i``'s view at instant ``c`` (estimates from :meth:`estimate`)."""
         horizon, offsets, held = self.horizon, self.offsets, self.network.held[i]
         heard = [int(j) for j in np.flatnonzero(listens[i])]
-        for plan in (self.plans[i], *(held[j] for j in heard)):
-            if id(plan) not in estimated:
-                estimated[id(plan)] = self.estimate(plan, c)
-        own = estimated[id(self.plans[i])]
+        own = self.estimate(self.plans[i], c)
         others = (
-            np.stack([estimated[id(held[j])] for j in heard])
+            np.stack([self.estimate(held[j], c) for j in heard])
             if heard
             else np.zeros((0, horizon + 1, 2))
         )  # (J, H + 1, 2)
@@ -304,23 +297,26 @@ class ClosedLoop:
     def estimate(self, plan: Plan, c: int) -> np.ndarray:
         """``plan``'s estimated positions at instants ``c .. c + H`` (read-only).
 
-        A plan is estimated once, from its start over :data:`TRACK_HORIZONS` horizons, and
-        each instant takes its slice; every position depends on its instant alone, so the
-        slice is what :func:`estimate_positions` computes at ``c``, to the bit. A plan held
-        for longer (plans lost or late) is estimated afresh.
+        A plan is estimated once, from its start over :data:`TRACK_HORIZONS` horizons (longer
+        when plans are lost or late and it is held for longer), and each instant takes its
+        slice; every position depends on its instant alone, so the slice is what
+        :func:`estimate_positions` computes at ``c``, to the bit.
         """
-        horizon, extension = self.horizon, self.scenario.communication.estimate_extension
+        horizon, offset = self.horizon, c - plan.start_step
+        if offset < 0:
+            raise ValueError(f"plan starts at instant {plan.start_step}, after {c}")
+        needed = offset + horizon + 1
+        # the entry holds the plan, so no other object can take its id while it is there
         entry = self.tracks.get(id(plan))
-        if entry is None or entry[0] is not plan:
+        if entry is None or entry[1].shape[0] < needed:
+            length = max(TRACK_HORIZONS * (horizon + 1), needed + horizon + 1)
             track = estimate_positions(
-                plan, plan.start_step, TRACK_HORIZONS * (horizon + 1), self.period, extension
-            )
+                plan, plan.start_step, length, self.period,
+                self.scenario.communication.estimate_extension,
+            )  # fmt: skip
             track.setflags(write=False)
             entry = self.tracks[id(plan)] = (plan, track)
-        offset = c - plan.start_step
-        if 0 <= offset and offset + horizon + 1 <= entry[1].shape[0]:
-            return entry[1][offset : offset + horizon + 1]
-        return estimate_positions(plan, c, horizon + 1, self.period, extension)
+        return entry[1][offset:needed]
 
     def forget_old_tracks(self) -> None:
         """Drop the tracks of plans that no UAV holds any more."""

@@ -198,7 +198,7 @@ class CompiledTally(Tally):
 
     def run(self, kernels: Any, state: Any, params: tuple, draws: Draws, nit: int) -> Outcome:
         block = Block(self.objective.address, self.objective.data, self.counts, self.best, *draws)
-        # the state comes back as plain tuples (ask_tell.plain says why)
+        # the state comes back as plain tuples (plain says why)
         returned, done = kernels.iterate(state, params, block, nit, draws.uniforms.shape[0])
         return dressed(returned, state), done
 

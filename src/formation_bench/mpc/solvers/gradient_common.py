@@ -154,3 +154,37 @@ def shift_of(
         if np.abs(problem.decision_from_controls(controls[index]) - x0).max() <= 1e-12:
             return int(s)
     return None
+
+
+class BufferedFunction:
+    """A CasADi ``Function`` evaluated in place on preallocated arrays (its buffer interface).
+
+    An ordinary call converts every argument and result to and from ``DM``: about 40 µs of a
+    50 µs linearisation, 0.1 ms of an ``nlpsol`` call. Here the arguments are written into
+    :attr:`inputs`, :meth:`__call__` evaluates, and the results are read from :attr:`outputs`
+    (both by the function's own names, in its order; the results are overwritten by the next
+    call). The buffer's memory adds CasADi's counters and timers up over its calls:
+    :meth:`stats` returns this call's, as differences.
+    """
+
+    def __init__(self, function: Any) -> None:
+        self.inputs = {n: np.zeros(function.nnz_in(i)) for i, n in enumerate(function.name_in())}
+        self.outputs = {n: np.zeros(function.nnz_out(i)) for i, n in enumerate(function.name_out())}
+        self._buffer, self._evaluate = function.buffer()
+        for index, array in enumerate(self.inputs.values()):
+            self._buffer.set_arg(index, memoryview(array))
+        for index, array in enumerate(self.outputs.values()):
+            self._buffer.set_res(index, memoryview(array))
+        self._totals: dict[str, float] = {}
+
+    def __call__(self) -> None:
+        self._evaluate()
+
+    def stats(self) -> dict[str, Any]:
+        """CasADi's statistics of the last call (its counters and timers for that call alone)."""
+        stats = dict(self._buffer.stats())
+        for name, value in stats.items():
+            if name.startswith(("n_call_", "t_wall_", "t_proc_")):
+                stats[name] = value - self._totals.get(name, 0)
+                self._totals[name] = value
+        return stats

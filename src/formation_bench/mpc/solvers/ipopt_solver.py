@@ -44,6 +44,7 @@ import numpy as np
 from formation_bench.fields import setting, validate_fields
 from formation_bench.mpc.model import rollout as numeric_rollout
 from formation_bench.mpc.solvers.gradient_common import (
+    BufferedFunction,
     SolverCacheMixin,
     fallback_result,
     require_local_problem,
@@ -93,53 +94,30 @@ class _Solver:
     dim: int
     n_states: int
     build_time_s: float
-    _inputs: dict[str, np.ndarray] = field(init=False, repr=False)
-    _outputs: dict[str, np.ndarray] = field(init=False, repr=False)
     _defaults: dict[str, float] = field(init=False, repr=False)
-    _buffer: Any = field(init=False, repr=False)
-    _trigger: Any = field(init=False, repr=False)
-    _totals: dict[str, float] = field(init=False, repr=False, default_factory=dict)
+    _call: BufferedFunction = field(init=False, repr=False)
+    """:attr:`nlpsol` on preallocated arrays: an ordinary call converts its 8 arguments and
+    6 results to and from DM, about 0.1 ms per call."""
     last_stats: dict[str, Any] = field(init=False, repr=False, default_factory=dict)
     """CasADi's statistics of the last :meth:`solve`."""
 
     def __post_init__(self) -> None:
-        # CasADi's buffer interface calls nlpsol on these arrays in place; an ordinary call
-        # converts its 8 arguments and 6 results to and from DM, about 0.1 ms per call
         nlpsol = self.nlpsol
-        self._inputs = {name: np.zeros(nlpsol.nnz_in(i)) for i, name in enumerate(nlpsol.name_in())}
-        self._outputs = {
-            name: np.zeros(nlpsol.nnz_out(i)) for i, name in enumerate(nlpsol.name_out())
-        }
-        self._defaults = {
-            name: float(nlpsol.default_in(i)) for i, name in enumerate(nlpsol.name_in())
-        }
-        self._buffer, self._trigger = nlpsol.buffer()
-        for index, array in enumerate(self._inputs.values()):
-            self._buffer.set_arg(index, memoryview(array))
-        for index, array in enumerate(self._outputs.values()):
-            self._buffer.set_res(index, memoryview(array))
+        self._defaults = {n: float(nlpsol.default_in(i)) for i, n in enumerate(nlpsol.name_in())}
+        self._call = BufferedFunction(nlpsol)
 
     def solve(self, arguments: dict[str, np.ndarray | float]) -> dict[str, np.ndarray]:
         """``nlpsol`` on ``arguments`` (by nlpsol's input names; the others take nlpsol's
         defaults, as in an ordinary call); copies of its results by name. :attr:`last_stats`
         holds CasADi's statistics of this call, also when it raises."""
-        for name, array in self._inputs.items():
+        call = self._call
+        for name, array in call.inputs.items():
             array[:] = arguments.get(name, self._defaults[name])
         try:
-            self._trigger()
+            call()
         finally:
-            self._record_stats()
-        return {name: array.copy() for name, array in self._outputs.items()}
-
-    def _record_stats(self) -> None:
-        # the buffer's memory adds its counters and timers up over its calls (an ordinary
-        # call starts them at zero): this call's are the differences
-        stats = dict(self._buffer.stats())
-        for name, value in stats.items():
-            if name.startswith(("n_call_", "t_wall_", "t_proc_")):
-                stats[name] = value - self._totals.get(name, 0)
-                self._totals[name] = value
-        self.last_stats = stats
+            self.last_stats = call.stats()
+        return {name: array.copy() for name, array in call.outputs.items()}
 
 
 @dataclass

@@ -75,6 +75,7 @@ import numpy as np
 from formation_bench.fields import setting, validate_fields
 from formation_bench.mpc.model import rollout as numeric_rollout
 from formation_bench.mpc.solvers.gradient_common import (
+    BufferedFunction,
     SolverCacheMixin,
     fallback_result,
     require_local_problem,
@@ -137,47 +138,30 @@ class LtvFunctions:
     dim: int
     """Length of ``du``: the first variables of the QP."""
     build_time_s: float
-    _inputs: tuple[np.ndarray, np.ndarray] = field(init=False, repr=False)
-    """``u0`` and the parameter vector, read by :attr:`linearise` through its buffer."""
-    _outputs: tuple[np.ndarray, ...] = field(init=False, repr=False)
-    _buffer: Any = field(init=False, repr=False)
-    _trigger: Any = field(init=False, repr=False)
+    _linearise: BufferedFunction = field(init=False, repr=False)
+    """:attr:`linearise` on preallocated arrays: about 7 µs a call against about 50 µs."""
     _setup_matrices: tuple[sp.csc_matrix, sp.csc_matrix] = field(init=False, repr=False)
     """Copies of P and A whose values :meth:`setup_matrices` overwrites (OSQP copies them)."""
 
     def __post_init__(self) -> None:
-        # CasADi's buffer interface evaluates on these arrays in place: about 10 µs in its
-        # virtual machine against about 50 µs for an ordinary call, which converts every
-        # argument and result to and from DM
-        function = self.linearise
-        self._inputs = (np.zeros(function.nnz_in(0)), np.zeros(function.nnz_in(1)))
-        self._outputs = tuple(np.zeros(function.nnz_out(i)) for i in range(function.n_out()))
-        self._buffer, self._trigger = function.buffer()
-        for index, array in enumerate(self._inputs):
-            self._buffer.set_arg(index, memoryview(array))
-        for index, array in enumerate(self._outputs):
-            self._buffer.set_res(index, memoryview(array))
+        self._linearise = BufferedFunction(self.linearise)
         self._setup_matrices = (self.P.copy(), self.A.copy())
 
     def evaluate(
         self, u0: np.ndarray, params: np.ndarray
     ) -> tuple[dict[str, np.ndarray], np.ndarray]:
         """The changing matrix values by ``OSQP.update`` name, and ``q``, of the QP about ``u0``."""
-        self._inputs[0][:] = u0
-        self._inputs[1][:] = params
-        self._trigger()
-        *matrices, q = self._outputs
-        named = {name: values.copy() for name, values in zip(self.changing, matrices, strict=True)}
-        return named, q.copy()
+        call = self._linearise
+        call.inputs["u0"][:] = u0
+        call.inputs["p"][:] = params
+        call()
+        named = {name: call.outputs[name].copy() for name in self.changing}
+        return named, call.outputs["q"].copy()
 
     def matrices(self, values: dict[str, np.ndarray]) -> tuple[sp.csc_matrix, sp.csc_matrix]:
-        """``P`` and ``A`` with their changing values set to ``values``."""
-        P, A = self.P.copy(), self.A.copy()
-        if "Px" in values:
-            P.data = np.array(values["Px"], dtype=np.float64)
-        if "Ax" in values:
-            A.data = np.array(values["Ax"], dtype=np.float64)
-        return P, A
+        """``P`` and ``A`` with their changing values set to ``values`` (new matrices)."""
+        P, A = self.setup_matrices(values)
+        return P.copy(), A.copy()
 
     def setup_matrices(self, values: dict[str, np.ndarray]) -> tuple[sp.csc_matrix, sp.csc_matrix]:
         """:meth:`matrices` without the copies (SciPy's constructor takes 20 µs): the same
