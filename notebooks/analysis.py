@@ -24,8 +24,8 @@
 # `formation_bench.analysis.report` (and its suite sections). The sentence
 # under each figure is computed from the data.
 #
-# Produce the results (about 15 minutes on 2 cores for the first four suites, and
-# 5.0, 2.3 and 1.2 minutes for the last three):
+# Produce the results (each suite's results page in the documentation says how long it
+# took, when and on which machine):
 #
 # ```bash
 # for suite in paper ablation comparison trigger swarm robustness obstacles; do
@@ -222,7 +222,7 @@ else:
     for metric in ("tracking_error_max_m", "distance_error_rms_m"):
         show(metric_vs_n_figure(swarm.runs, metric))
         say(analysis.swarm_sentence(swarm, metric))
-    say(swarm.intro + "\n" + swarm.parts["tracking_error_max_m"])
+    say(swarm.markdown)
 
 # %% [markdown]
 # ## 6. Robustness: wind, noise, lost and late plans, model mismatch
@@ -237,7 +237,7 @@ if robustness is None:
 else:
     show(metric_vs_level_figure(robustness.runs, "tracking_error_max_m"))
     say(analysis.robustness_sentence(robustness, "tracking_error_max_m"))
-    say(robustness.intro + "\n" + robustness.parts["tracking_error_max_m"])
+    say(robustness.markdown)
 
 # %% [markdown]
 # ## 7. Obstacles and collisions
@@ -252,4 +252,4 @@ if obstacles is None:
 else:
     show(safety_metrics_figure(obstacles.runs))
     say(analysis.obstacles_sentence(obstacles))
-    say(obstacles.intro + "\n" + obstacles.parts["obstacle_intrusions"])
+    say(obstacles.markdown)

@@ -114,8 +114,9 @@ def test_leaves_numpy_global_random_state_alone(name: str) -> None:
 
 
 # Largest median (3 seeds, default budget of 1230 evaluations) each adapter must reach in
-# 10 dimensions, 3-10 times the medians measured (docs/optimizers.md, "Adapters"): the sphere
-# centred off the middle of [-5, 5]^10, Rosenbrock on [-2, 2]^10 (a random point costs ~2000).
+# 10 dimensions, 3-10 times the medians measured (docs/explanation/optimizers.md, "Adapters"):
+# the sphere centred off the middle of [-5, 5]^10, Rosenbrock on [-2, 2]^10 (a random point
+# costs ~2000).
 SPHERE = {"ng-ngopt": 0.02, "ng-de": 2.0, "pycma": 1e-4, "mealpy-bso": 3.0, "mealpy-gwo": 0.5}
 ROSENBROCK = {"ng-ngopt": 30.0, "ng-de": 40.0, "pycma": 30.0, "mealpy-bso": 120.0, "mealpy-gwo": 30}
 

@@ -156,7 +156,7 @@ BOUNDARY = [
     ([*RUN, "--set", "delay_steps=1000", "--out", "{out}"], "no plan would reach"),
     (["sweep", "{zero_weight_suite}", "--out", "{out}"], "both weights 0"),
     # plugin settings are declared, checked and listed like the shipped ones
-    (["--plugin", "{readme_plugin}", "run", "--optimizer", "my-random-search",
+    (["--plugin", "{tutorial_plugin}", "run", "--optimizer", "my-random-search",
       "--set", "population_size=0", "--out", "{out}"], "--set population_size: expected"),
     (["--plugin", "{plain_plugin}", "list"], "setting("),
     # a name registered twice is refused by every command
@@ -195,9 +195,9 @@ register("pso", get_optimizer("pso"), "the same name again")
 """
 
 
-def readme_plugin_source() -> str:
-    readme = (Path(__file__).parents[1] / "README.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", readme, flags=re.S)
+def tutorial_plugin_source() -> str:
+    tutorial = Path(__file__).parents[1] / "docs" / "tutorials" / "add-optimizer.md"
+    blocks = re.findall(r"```python\n(.*?)```", tutorial.read_text(), flags=re.S)
     return next(b for b in blocks if "register(" in b)
 
 
@@ -260,7 +260,7 @@ def places(tmp_path: Path) -> dict[str, str]:
         '[[scenarios]]\nname = "paper"\noverrides = { w_dst = 0.0, w_trj = 0.0 }\n'
     )
     plugins = {}
-    for name, source in (("readme", readme_plugin_source()), ("plain", PLAIN_PLUGIN),
+    for name, source in (("tutorial", tutorial_plugin_source()), ("plain", PLAIN_PLUGIN),
                          ("pso", PSO_AGAIN)):  # fmt: skip
         plugins[f"{name}_plugin"] = str(tmp_path / f"{name}_plugin.py")
         Path(plugins[f"{name}_plugin"]).write_text(source)

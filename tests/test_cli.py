@@ -152,7 +152,8 @@ def test_parse_value():
 
 
 def test_a_sweep_run_is_repeated_exactly_by_run_with_its_entropy_and_budget(tmp_path):
-    """The command docs/benchmarks.md gives for repeating a sweep run: seeds of 128 bits."""
+    """The command docs/explanation/benchmarks.md gives for repeating a sweep run: seeds of 128
+    bits."""
     from formation_bench.experiments.store import load_results
     from formation_bench.experiments.suite import parse_suite
     from formation_bench.experiments.sweep import run_sweep
@@ -220,44 +221,30 @@ def test_first_run_notice_and_progress_bar_go_to_stderr(tmp_path, monkeypatch, c
     err = capsys.readouterr().err
     assert "compiling numba kernels" in err and "/4 [" in err and "instant" in err
     monkeypatch.setattr("formation_bench.cli.main.kernels_cached", lambda: True)
+    monkeypatch.setattr("formation_bench.cli.main.optimizer_kernels_cached", lambda _: True)
     assert main([*args, "--no-progress", "--out", str(tmp_path / "b")]) == 0
     assert capsys.readouterr().err == ""
 
 
 def test_the_kernel_cache_is_found_after_a_run():
-    import numpy as np
+    from formation_bench.mpc.scenario import get_scenario
+    from formation_bench.optimizers import get_optimizer
+    from formation_bench.pipeline.runner import execute, kernels_cached, optimizer_kernels_cached
+    from formation_bench.pipeline.spec import RunSpec
 
-    from formation_bench.optimizers import Bounds, Budget, get_optimizer
-    from formation_bench.pipeline.runner import kernels_cached, warm_up_kernels
-
-    warm_up_kernels()
-    get_optimizer("modified-bso").minimize(
-        lambda x: np.sum(x**2, axis=1), Bounds(-np.ones(4), np.ones(4)),
-        np.random.default_rng(0), Budget(max_evaluations=100),
-    )  # fmt: skip
-    assert kernels_cached()
+    scenario = get_scenario("paper", n_steps=3, settle_time_s=0.2)
+    optimizer = get_optimizer("modified-bso", max_iterations=2)
+    execute(RunSpec.of("modified-bso", optimizer, "paper", scenario, trigger=True, seed=0))
+    assert kernels_cached() and optimizer_kernels_cached(optimizer)
 
 
-def documented_trace_columns() -> list[str]:
-    """The column names of the trace table in docs/benchmarks.md, in order."""
-    import re
-    from pathlib import Path
+def test_the_trace_columns_are_written_as_declared(tmp_path):
+    from formation_bench.pipeline.trace_columns import TRACE_COLUMN_NAMES
 
-    text = (Path(__file__).parents[1] / "docs" / "benchmarks.md").read_text()
-    table = text.split("<!-- trace columns:", 1)[1].split("\n\n", 1)[0]
-    columns = []
-    for line in table.splitlines()[3:]:  # after the comment, the header and the rule
-        columns += re.findall(r"`([a-z0-9_]+)`", line.split("|")[1])
-    return columns
-
-
-def test_the_trace_columns_are_documented_as_written(tmp_path):
     out = tmp_path / "run"
     args = ["run", "--optimizer", "pso", "--no-figures", "--set", "n_steps=3"]
     assert main([*args, "--set", "settle_time_s=0", "--out", str(out)]) == 0
-    written = list(pd.read_parquet(out / "trace.parquet").columns)
-    documented = documented_trace_columns()
-    assert documented == written
+    assert list(pd.read_parquet(out / "trace.parquet").columns) == list(TRACE_COLUMN_NAMES)
 
 
 def test_help_texts_carry_no_markup(capsys):
@@ -277,16 +264,6 @@ def test_a_malformed_set_value_names_the_field_and_the_form(tmp_path, capsys):
         "formation-bench run: error: --set accel_bounds: expected a pair (lower, upper) of "
         "numbers, got (1,)\n"
     )
-
-
-def test_the_record_columns_are_documented_as_declared():
-    from pathlib import Path
-
-    from formation_bench.pipeline.record import columns_table
-
-    text = (Path(__file__).parents[1] / "docs" / "benchmarks.md").read_text()
-    documented = text.split("<!-- record columns:", 1)[1].split("\n", 1)[1].split("\n\n", 1)[0]
-    assert documented == columns_table()
 
 
 def test_the_command_line_modules_import_one_way():

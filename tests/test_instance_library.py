@@ -33,7 +33,7 @@ GAP_TOLERANCE = 1e-6
 """How far below J* (relative) an optimiser may end before J* counts as beaten."""
 ADAPTER_STRIDE = 50
 """The adapters solve every 50th instance: their libraries' Python overhead makes a solve 30-650
-times slower than the compiled optimisers' (docs/optimizers.md, "Adapters")."""
+times slower than the compiled optimisers' (docs/explanation/optimizers.md, "Adapters")."""
 
 
 @pytest.fixture(scope="module")

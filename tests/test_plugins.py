@@ -232,10 +232,10 @@ def test_registry_refuses_duplicates_and_bad_names():
     assert "thing 'b'" in str(registry.unknown("b"))
 
 
-def test_plugin_source_code_is_shown_in_the_readme():
-    readme = (ROOT / "README.md").read_text()
-    assert "formation_bench.optimizers" in readme and "--plugin" in readme
-    assert textwrap.dedent('[project.entry-points."formation_bench.optimizers"]') in readme
+def test_plugin_source_code_is_shown_in_the_tutorial():
+    tutorial = (ROOT / "docs" / "tutorials" / "add-optimizer.md").read_text()
+    assert "formation_bench.optimizers" in tutorial and "--plugin" in tutorial
+    assert textwrap.dedent('[project.entry-points."formation_bench.optimizers"]') in tutorial
 
 
 def one_line_refusal(done: subprocess.CompletedProcess, *needles: str) -> str:

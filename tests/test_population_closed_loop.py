@@ -1,7 +1,7 @@
 """Every registered population optimiser drives the paper's closed loop, with and without trigger.
 
 Short runs (a few instants) keep this fast; the full 240-instant runs of
-``formation-bench run --optimizer NAME`` are listed in ``docs/optimizers.md``.
+``formation-bench run --optimizer NAME`` are listed in ``docs/explanation/optimizers.md``.
 """
 
 from __future__ import annotations
@@ -19,11 +19,11 @@ from formation_bench.optimizers.adapters import ADAPTERS
 
 SHORT = get_scenario("paper", n_steps=6, settle_time_s=0.0)
 SHORTER = get_scenario("paper", n_steps=2, settle_time_s=0.0)
-"""For the adapters, whose solves take up to a second (docs/optimizers.md, "Adapters")."""
+"""For the adapters, whose solves take up to a second (docs/how-to/adapters.md)."""
 POPULATION = [n for n in optimizer_names() if isinstance(get_optimizer(n), PopulationOptimizer)]
 
 
-# the adapters' libraries make a solve 30-650 times slower (docs/optimizers.md, "Adapters")
+# the adapters' libraries make a solve 30-650 times slower (docs/how-to/adapters.md)
 @pytest.mark.parametrize(
     "name", [pytest.param(n, marks=pytest.mark.slow) if n in ADAPTERS else n for n in POPULATION]
 )

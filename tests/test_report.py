@@ -5,6 +5,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from formation_bench.analysis.cells import metric_column
+from formation_bench.analysis.results_page import (
+    FINDINGS_END,
+    FINDINGS_START,
+    write_results_page,
+)
 from formation_bench.cli.main import main
 from formation_bench.experiments.suite import parse_suite
 from formation_bench.experiments.sweep import run_sweep
@@ -50,15 +56,15 @@ def results(tmp_path_factory):
 
 
 @pytest.mark.slow
-def test_report_prints_and_writes_tables_and_figures(results, capsys):
+def test_report_prints_and_writes_tables_and_figures(results, capsys, tmp_path):
     assert main(["report", str(results), "--baseline", "no-modifications"]) == 0
     printed = capsys.readouterr().out
     assert "compared: optimizer (baseline 'no-modifications')" in printed
     assert "## trigger on" in printed and "## trigger off" in printed
-    assert "**tracking_error_max_m**" in printed and "Friedman: chi2 =" in printed
+    assert "tracking error max after the settle time (m)" in printed and "| Friedman p |" in printed
     folder = results / "report"
     markdown = (folder / "report.md").read_text()
-    assert "**distance_error_max_m_d31**" in markdown  # the file holds every metric
+    assert "distance error max d31 (m)" in markdown  # the file holds every metric
     summary = pd.read_csv(folder / "summary.csv")
     assert set(summary["optimizer"]) == {
         "modified-bso[max_iterations=3]",
@@ -92,10 +98,32 @@ def test_report_prints_and_writes_tables_and_figures(results, capsys):
         assert (figures / name).stat().st_size > 10_000
     drawn = {p.stem.removeprefix("distribution_") for p in figures.glob("distribution_*.png")}
     assert drawn == set(headline_metrics())
-    # the terminal shows the headline metrics of each block, in their declared places
+    # the terminal shows the headline metrics of each block as columns, in their declared
+    # places, those constant over the block's runs named on a line instead
     first_block = printed.split("## trigger on", 1)[1].split("\n## ", 1)[0]
-    shown = [line.strip("*") for line in first_block.splitlines() if line.startswith("**")]
-    assert shown == list(headline_metrics())
+    header = next(line for line in first_block.splitlines() if line.startswith("| optimizer |"))
+    shown = [cell.strip() for cell in header.strip("|").split("|")[2:]]
+    constant = next((ln for ln in first_block.splitlines() if ln.startswith("Constant")), "")
+    expected = [
+        metric_column(m).header.rsplit(" (", 1)[0]
+        for m in headline_metrics()
+        if f"{metric_column(m).name} = " not in constant
+    ]
+    assert [cell.rsplit(" (", 1)[0] for cell in shown] == expected
+    # a results page of the folder: the commands, the date and every table marked
+    page = write_results_page(results, tmp_path / "page.md", folder)
+    text = page.read_text()
+    assert text.startswith("# Results: suite small (")
+    assert "formation-bench report" in text.splitlines()[2] and "--page" in text.splitlines()[2]
+    assert "<!-- produced by: formation-bench report" in text
+    # findings written by hand into the page survive its regeneration, under the first paragraph
+    findings = f"{FINDINGS_START}\nThe trigger halves the solves.\n{FINDINGS_END}"
+    page.write_text(text.replace("## Headline metrics", f"{findings}\n\n## Headline metrics"))
+    again = write_results_page(results, page, folder).read_text()
+    assert again.count("The trigger halves the solves.") == 1
+    assert again.index(FINDINGS_END) < again.index("## Headline metrics")
+    assert again.replace(f"{findings}\n\n", "") == text
+    assert not list(tmp_path.glob(".*.partial"))
 
 
 def test_the_metrics_declare_how_they_are_shown():
@@ -145,8 +173,8 @@ def test_report_compares_with_several_baselines(results, tmp_path, capsys):
     assert main([*args, "--out", str(out), "--no-figures"]) == 0
     printed = capsys.readouterr().out
     assert "(baseline 'no-modifications' and 'no-all-centre')" in printed
-    assert "| p (Holm) vs no-modifications | A12 vs no-modifications |" in printed
-    assert "| p (Holm) vs no-all-centre | A12 vs no-all-centre |" in printed
+    assert "Against no-modifications, paired by seed" in printed
+    assert "Against no-all-centre, paired by seed" in printed
     wilcoxon = pd.read_csv(out / "wilcoxon.csv")
     assert set(wilcoxon["baseline"]) == {"no-modifications", "no-all-centre"}
     # each baseline's family is Holm-adjusted on its own: two levels against each
@@ -176,3 +204,26 @@ def test_report_compares_triggers_and_refuses_an_unknown_baseline(results, tmp_p
     assert len(err.splitlines()) == 1
     assert err.startswith("formation-bench report: error: --baseline: 'pso'")
     assert "no-modifications" in err
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # seaborn on newer Matplotlib
+def test_the_trigger_figure_draws_the_solves_per_run_beside_the_conditions():
+    from formation_bench.analysis.figures import trigger_conditions_figure
+
+    frame = pd.DataFrame(
+        {
+            "optimizer": np.repeat(["a", "b"], 4),
+            "trigger": ["on"] * 6 + ["off"] * 2,
+            "solves_total": [10, 12, 11, 13, 20, 22, 99, 99],
+            "trigger_distance": [3, 4, 3, 4, 8, 9, 0, 0],
+            "trigger_expiry": [3] * 8,
+        }
+    )
+    fig = trigger_conditions_figure(frame)
+    solves, conditions = fig.axes[:2]
+    assert solves.get_ylabel() == column_label("solves_total")
+    drawn = np.concatenate([c.get_offsets()[:, 1] for c in solves.collections])
+    assert sorted(drawn) == [10, 11, 12, 13, 20, 22]  # every run with the trigger on
+    assert [round(b.get_height(), 6) for b in solves.patches] == [11.5, 21.0]  # the medians
+    assert conditions.get_ylabel() == "solves per run at which the condition held"
+    plt.close(fig)

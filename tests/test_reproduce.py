@@ -37,8 +37,11 @@ def test_reproduce_writes_both_runs_and_the_table(tmp_path, capsys):
     rows = comparison_rows(metrics)
     assert len(rows) == len(PAPER_FIGURES)
     assert format_table(rows) in printed
-    # the budget the paper needs is read from the shipped sweep, not run again
-    assert shipped_line("modified-bso") in printed
+    # the budget the paper needs is read from the shipped sweep, not run again; it comes last
+    assert printed.splitlines()[-1] == shipped_line("modified-bso")
+    assert "97.000" not in printed and all(
+        f"  {metrics[1][f'solves_uav{k}']}  " in printed for k in (1, 2, 3)
+    )
     for row in rows:
         assert row["holds"] == (row["measured"] <= row["paper"])
 
@@ -107,3 +110,24 @@ def test_seed_table_counts_holds_per_figure():
     uav2 = next(line for line in lines if "UAV 2" in line)
     assert uav2.endswith("| 100 | 170 ✗ | 1/2 |")
     assert len(lines) == 2 + len(PAPER_FIGURES)
+
+
+@pytest.mark.slow
+def test_the_front_page_and_the_tutorial_show_what_reproduce_prints(tmp_path, capsys):
+    """The README's table of seed 0 and the tutorial's table of seeds 0-4 are the printed ones."""
+    from pathlib import Path
+
+    root = Path(__file__).parents[1]
+    assert main(["reproduce", "--out", str(tmp_path / "one"), "--no-figures"]) == 0
+    printed = capsys.readouterr().out
+    readme = (root / "README.md").read_text()
+    shown = readme.split("```text\n", 1)[1].split("```", 1)[0]
+    assert shown.strip() and shown in printed
+    seeds = ["0", "1", "2", "3", "4"]
+    five = ["reproduce", "--out", str(tmp_path / "five"), "--no-figures", "--seeds", *seeds]
+    assert main(five) == 0
+    printed = capsys.readouterr().out
+    tutorial = (root / "docs" / "tutorials" / "reproduce.md").read_text()
+    marker = "<!-- produced by: formation-bench reproduce --seeds 0 1 2 3 4 --no-figures -->\n"
+    table = tutorial.split(marker, 1)[1].split("\n\n", 1)[0]
+    assert table.count("\n") == 12 and table in printed

@@ -119,7 +119,8 @@ def test_report_tables_on_a_fixed_table_match_hand_values():
     constant = report.wilcoxon[report.wilcoxon["metric"] == "nfev_total"]
     assert constant["p_holm"].tolist() == [1.0, 1.0] and constant["a12"].tolist() == [0.5, 0.5]
     text = to_markdown(report, TABLE)
-    assert "| better | 6 | 3.85 |" in text and "Friedman: chi2 = 7," in text
+    # the block's tables: the median with its CI, the Friedman p = exp(-3.5) over 6 seeds
+    assert "| better | 6 | 3.85 [" in text and "| Friedman p | 0.030 (6) |" in text
 
 
 def test_missing_seeds_are_left_out_of_the_pairs():

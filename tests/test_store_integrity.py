@@ -46,7 +46,8 @@ RUNS = 4
 TRACE_TIMING = ("solve_time_s",)
 """Trace columns that measure the machine, not the run."""
 SCORE_TIMING = ("seconds",)
-"""Score columns that measure the machine, not the run."""
+"""Score columns that measure the machine, not the run, besides the provenance's timing ones
+(:func:`~formation_bench.pipeline.record.is_timing_column`)."""
 
 
 def suite_file(folder: Path, name: str = "integrity") -> Path:
@@ -84,7 +85,8 @@ def score_runs_of(library: Library) -> list[score.ScoreRun]:
 
 
 def scores_of(out: Path) -> pd.DataFrame:
-    return score.load_scores(out).drop(columns=list(SCORE_TIMING))
+    scores = score.load_scores(out)
+    return scores.drop(columns=[c for c in scores if c in SCORE_TIMING or is_timing_column(c)])
 
 
 @pytest.fixture(scope="module")

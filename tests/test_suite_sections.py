@@ -143,20 +143,73 @@ def test_swarm_medians_intervals_and_tests_match_direct_computation(five):
     assert (ranks[list(OPTIMIZERS)].to_numpy() == [1.0, 2.0, 3.0]).all()
 
 
+def _table_lines(text: str, heading: str) -> list[str]:
+    """The table rows of the block under ``heading`` (up to the next heading)."""
+    after = text.split(heading + "\n", 1)[1].split("\n### ", 1)[0]
+    return [line for line in after.splitlines() if line.startswith("|")]
+
+
+def _cells(line: str) -> list[str]:
+    return [cell.strip() for cell in line.strip("|").split("|")]
+
+
+HEADER = "| optimizer | tracking error max after the settle time (m) |"
+
+
 @pytest.mark.slow
-def test_swarm_markdown_tables_against_n_with_ranks_and_the_power_note(five, ten):
+def test_swarm_one_table_per_cell_with_metric_columns_and_an_overall_ranking(five, ten):
     swarm = five[0]["swarm"]
     text = swarm.markdown
-    assert "| graph | optimizer | N = 3 | N = 5 |" in text
-    ring = next(line for line in text.splitlines() if line.startswith("| ring | pso |"))
-    assert ring.split(" | ")[2] == "–" and "A12 0.00" in ring  # no ring of 3 UAVs
-    assert "| N | graph | modified-bso | de | pso | Friedman p |" in text
+    headings = [line for line in text.splitlines() if line.startswith("### ")]
+    assert headings == [
+        "### N = 3, complete graph",
+        "### N = 5, complete graph",
+        "### N = 5, ring graph against the complete graph",
+        "### Ranking across all cells",
+    ]
+    # the optimisers are the rows, the metrics the columns, headed with their unit
+    lines = _table_lines(text, "### N = 5, ring graph against the complete graph")
+    assert lines[0].startswith(HEADER) and "| median solve time (ms) |" in lines[0]
+    assert [_cells(line)[0] for line in lines[2:]] == ["modified-bso", "de", "pso"]
+    assert "**" not in text and "against N" not in text  # no table per metric
+    # a cell: the median against the complete graph's, A12 and the Holm mark of the table
+    table = swarm.table.set_index(["scenario", "optimizer", "metric"])
+    metric = "tracking_error_max_m"
+    ring, complete = (
+        table.loc[("N5-ring", "pso", metric)],
+        table.loc[("N5-complete", "pso", metric)],
+    )
+    pso = next(line for line in lines if line.startswith("| pso |"))
+    column = sections.metric_column(metric)
+    assert _cells(pso)[1] == (
+        f"{column.value(ring['median'])} vs {column.value(complete['median'])}, "
+        f"A12 {ring['condition_a12']:.2f}"
+    )
     assert "smallest two-sided Wilcoxon p is 0.0625" in text
-    assert set(swarm.parts) == set(sections.SWARM_METRICS)
+    # the ranking across all cells: Friedman over (cell, seed) blocks, as computed directly
+    runs = swarm.runs
+    values = runs.pivot_table(
+        index=["scenario", "seed"], columns="optimizer", values=metric, aggfunc="first"
+    )
+    direct = stats.friedman(values)
+    ranking = _table_lines(text, "### Ranking across all cells")
+    assert [_cells(line)[0] for line in ranking[2:]] == [
+        "modified-bso",
+        "de",
+        "pso",
+        "Friedman p (blocks)",
+    ]
+    assert _cells(ranking[-1])[1] == f"{sections.p_cell(direct.pvalue)} ({direct.n_blocks})"
+    assert direct.n_blocks == 15  # 3 cells x 5 seeds
+    de = next(line for line in ranking if line.startswith("| de |"))
+    assert _cells(de)[1] == f"{direct.average_ranks['de']:.2f}"
+    stored = swarm.ranking.set_index(["metric", "optimizer"])
+    assert stored.loc[(metric, "pso"), "average_rank"] == direct.average_ranks["pso"]
     # enough seeds for a significant pair: no note, and the clear differences are marked
     swarm = ten[0]["swarm"]
     assert "smallest two-sided Wilcoxon p" not in swarm.markdown
-    assert "A12 0.00*" in swarm.parts["tracking_error_max_m"]
+    ring = _table_lines(swarm.markdown, "### N = 5, ring graph against the complete graph")
+    assert all(_cells(line)[1].endswith("A12 0.00*") for line in ring[2:])
 
 
 def test_robustness_compares_every_level_with_the_nominal_run(ten):
@@ -169,7 +222,26 @@ def test_robustness_compares_every_level_with_the_nominal_run(ten):
     assert (rows["condition_p_holm"] < 0.05).all()
     levels = ["N3-complete", "gust-1", "loss-0.1", "loss-0.3"]
     assert list(dict.fromkeys(table["scenario"])) == levels
-    assert "| family | level | modified-bso | de | pso |" in robustness.markdown
+    # one block per level, in that order, each with the optimisers as rows
+    assert list(robustness.blocks) == [
+        "### nominal N3-complete",
+        "### wind gust-1 against nominal",
+        "### packet loss loss-0.1 against nominal",
+        "### packet loss loss-0.3 against nominal",
+    ]
+    lines = _table_lines(robustness.markdown, "### packet loss loss-0.3 against nominal")
+    assert lines[0].startswith(HEADER)
+    de = next(line for line in lines if line.startswith("| de |"))
+    assert _cells(de)[1].endswith("A12 1.00*")
+    # ranks per block: the block's Friedman p, with its seeds
+    friedman = table[
+        (table["scenario"] == "loss-0.3") & (table["metric"] == "tracking_error_max_m")
+    ]
+    last = next(line for line in lines if line.startswith("| Friedman p (seeds) |"))
+    first = friedman.iloc[0]
+    assert _cells(last)[1] == (
+        f"{sections.p_cell(first['friedman_p'])} ({int(first['friedman_seeds'])})"
+    )
 
 
 def test_obstacles_compare_the_penalties_on_with_off(five):
@@ -184,10 +256,33 @@ def test_obstacles_compare_the_penalties_on_with_off(five):
         on["obstacle_intrusions"].to_numpy(), off["obstacle_intrusions"].to_numpy()
     )
     assert row["median"] == 0
-    assert table.loc[("obstacles-off", "modified-bso", "obstacle_intrusions"), "median"] > 0
-    lines = obstacles.parts["obstacle_intrusions"].splitlines()
-    assert "| scenario | penalties | modified-bso | de | pso |" in lines
-    assert any(line.startswith("| paper-obstacles | obstacle + collision |") for line in lines)
+    off_median = table.loc[("obstacles-off", "modified-bso", "obstacle_intrusions"), "median"]
+    assert off_median > 0
+    # one table for the scenario: penalties on against off, a column per metric
+    heading = "### paper-obstacles, 3 UAVs: penalties obstacle + collision against off"
+    assert list(obstacles.blocks) == [heading]
+    lines = _table_lines(obstacles.markdown, heading)
+    assert lines[0].startswith("| optimizer | obstacle intrusions per run (count) |")
+    bso = _cells(next(line for line in lines if line.startswith("| modified-bso |")))
+    assert bso[1] == f"0 vs {off_median:.0f}, A12 {row['condition_a12']:.2f}"
+    # the ranks with each penalty setting, the Friedman p of each
+    assert any(line.startswith("| obstacle + collision | Friedman p (seeds) |") for line in lines)
+    assert any(line.startswith("| off | Friedman p (seeds) |") for line in lines)
+    # the notebook's per-metric excerpt still finds the section's tables
+    assert heading in obstacles.markdown
+
+
+def test_a_ranks_table_whose_every_rank_is_tied_is_one_line():
+    runs = fake_results(labels=("obstacles-on", "obstacles-off"))
+    # every optimiser equal on every metric in every seed: ties everywhere
+    metrics = list(sections.OBSTACLE_METRICS)
+    runs[metrics] = runs.groupby(["scenario", "seed"])[metrics].transform("first")
+    obstacles = by_name(sections.sections(runs))["obstacles"]
+    text = obstacles.markdown
+    assert "Friedman p (seeds)" not in text
+    assert "no ranks table. Every optimiser has the same average rank" in text
+    ranks = obstacles.table["average_rank"].dropna()
+    assert ranks.nunique() == 1
 
 
 SUITE = """\
@@ -256,6 +351,8 @@ def test_report_writes_the_sections_of_a_real_sweep(results, capsys):
         assert (table["n"] == 3).all()
     swarm = pd.read_csv(folder / "swarm.csv")
     assert set(swarm["n_uav"]) == {3, 5} and set(swarm["graph"]) == {"complete", "ring"}
+    ranking = pd.read_csv(folder / "swarm_ranking.csv")
+    assert ranking["optimizer"].nunique() == 2 and (ranking["average_rank"] > 0).all()
     figures = folder / "figures"
     stems = [f"swarm_{m}" for m in sections.SWARM_METRICS]
     stems += [f"robustness_{m}" for m in sections.ROBUSTNESS_METRICS]
@@ -281,14 +378,24 @@ def test_the_robustness_sentence_compares_each_level_with_the_nominal_run_of_its
 
 
 def test_the_rank_note_marks_the_worst_where_higher_values_are_better(five):
-    from formation_bench.mpc.metrics import Better, metric_of
-
-    found, _ = five
+    found, runs = five
+    # where the separation is constant it is no column, and no rank is the worst
+    level = runs.assign(min_separation_m=1.0)
     checked = set()
-    for section in found.values():
-        for metric, text in section.parts.items():
-            higher = metric_of(metric).better is Better.HIGHER
-            assert ("1 = lowest value (the worst here" in text) == higher, (section.name, metric)
+    for section in [*found.values(), *sections.sections(level)]:
+        for heading, text in section.blocks.items():
+            ranked = [
+                line for line in text.splitlines() if line.startswith("Optimiser ranks within")
+            ]
+            if not ranked:
+                continue
+            header = next(
+                line
+                for line in text.splitlines()[text.splitlines().index(ranked[0]) :]
+                if line.startswith("| ")
+            )
+            higher = "smallest separation of two UAVs" in header
+            assert ("rank 1 is the worst on smallest separation" in ranked[0]) == higher, heading
             checked.add(higher)
     assert checked == {True, False}
 
@@ -302,3 +409,16 @@ def test_scenario_columns_read_the_stored_scenario_not_todays_registry():
     frame = sections.scenario_columns(results).drop_duplicates("scenario").set_index("scenario")
     assert frame.loc["N5-ring", "n_uav"] == 5 and frame.loc["N5-ring", "graph"] == "ring"
     assert frame.loc["loss-0.3", "family"] == "packet loss"
+
+
+def test_a_metric_constant_over_a_block_is_named_on_a_line_not_tabulated():
+    runs = fake_results().assign(collisions=0)
+    swarm = by_name(sections.sections(runs))["swarm"]
+    for heading, text in swarm.blocks.items():
+        assert "collisions per run = 0" in text, heading
+        assert "collisions" not in swarm.block_columns[heading]
+        assert "tracking_error_max_m" in swarm.block_columns[heading]
+    assert "collisions per run (count)" not in swarm.markdown
+    # the other metrics are headed with their unit, a time below a second in ms
+    assert HEADER in swarm.markdown
+    assert "| median solve time (ms) |" in swarm.markdown

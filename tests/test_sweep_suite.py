@@ -11,6 +11,7 @@ import pytest
 from formation_bench.cli.main import main
 from formation_bench.experiments.executors import execute_run
 from formation_bench.experiments.suite import (
+    SUITES_DIR,
     SuiteError,
     load_suite,
     parse_suite,
@@ -467,3 +468,11 @@ def test_obstacles_suite_turns_the_penalties_on_and_off():
         _scenario_of(e).safety.obstacles for e in suite.scenarios if e.name == "paper-obstacles"
     )
     assert len(suite.runs()) == 4 * 3 * 10
+
+
+def test_a_shipped_name_is_the_shipped_suite_beside_a_folder_of_that_name(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "paper").mkdir()  # say, the results of an earlier 'sweep paper --out paper'
+    assert load_suite("paper").path == SUITES_DIR / "paper.toml"
+    with pytest.raises(SuiteError, match="is a folder"):
+        load_suite("./paper")

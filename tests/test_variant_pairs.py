@@ -48,7 +48,14 @@ def test_a_variant_lower_on_every_seed_gives_the_exact_wilcoxon_p_and_a12_zero()
     de = table.loc["de-warm"]
     assert de["p"] == 1.0 and de["a12"] == 0.5 and not bool(de["significant"])
     text = to_markdown(pair_table(frame, metrics=("steady_state_cost",)))
-    assert "| pso-warm | pso | 12 |" in text
+    # one table for the block: the pairs as rows, the metric as a column with its unit
+    assert text.count("| variant | base | pairs |") == 1
+    assert (
+        "| variant | base | pairs | steady-state cost, eq. (11) after the settle time (m² s) |"
+        in text
+    )
+    pso_row = next(line for line in text.splitlines() if line.startswith("| pso-warm | pso | 12 |"))
+    assert pso_row == "| pso-warm | pso | 12 | 5.50 vs 106, 9.77e-04 *, A12 0.00 |", pso_row
 
 
 def test_no_pair_means_no_table():

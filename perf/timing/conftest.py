@@ -2,7 +2,7 @@
 
 ``pytest perf/timing`` is not part of the default test run (``testpaths``
 is ``tests``). The command and how to compare two saved runs are in
-``docs/benchmarks.md``.
+``docs/explanation/benchmarks.md``.
 """
 
 from __future__ import annotations

@@ -287,14 +287,30 @@ def solves_figure(frame: pd.DataFrame, factor: str = "optimizer") -> plt.Figure:
 
 
 def trigger_conditions_figure(frame: pd.DataFrame, factor: str = "optimizer") -> plt.Figure:
-    """Mean solves per run at which each trigger condition held, runs with the trigger only."""
+    """Runs with the trigger on: the solves per run (all UAVs; left panel, one point per run,
+    the median as a bar) and the mean solves per run at which each trigger condition held
+    (right panel; several conditions may hold at one solve)."""
     sns.set_theme(style="whitegrid")
     reasons = [c for c in frame.columns if c.startswith("trigger_") and c != "trigger"]
     triggered = frame[frame["trigger"].map(lambda t: t in (True, "on"))]
     order = _order(triggered, factor, "solves_total")
     counts = triggered.groupby(factor)[reasons].mean().reindex(order)
     counts.columns = [c.removeprefix("trigger_") for c in counts.columns]
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.55 * len(order) + 3), 4.4), constrained_layout=True)
+    width = max(6.0, 0.55 * len(order) + 3)
+    fig, (solves_ax, ax) = plt.subplots(
+        1, 2, figsize=(2 * width, 4.4), constrained_layout=True, sharey=False
+    )
+    medians = triggered.groupby(factor)["solves_total"].median().reindex(order)
+    solves_ax.bar(range(len(order)), medians.to_numpy(), color="0.85", label="median")
+    positions = {level: k for k, level in enumerate(order)}
+    solves_ax.scatter(
+        triggered[factor].map(positions), triggered["solves_total"], s=10, color="C0", label="run"
+    )
+    solves_ax.set_xticks(range(len(order)), order, rotation=35, ha="right")
+    solves_ax.set_xlabel(factor)
+    solves_ax.set_ylabel(column_label("solves_total"))
+    solves_ax.legend(fontsize=8)
+    solves_ax.set_title("Solves per run (trigger on)", fontsize=11)
     counts.plot.bar(ax=ax, rot=35)
     ax.set_xlabel(factor)
     ax.set_ylabel("solves per run at which the condition held")

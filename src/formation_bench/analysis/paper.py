@@ -29,9 +29,22 @@ class PaperFigure:
     limit: float
     """The paper's bound (the metric must be <= it)."""
     unit: str
-    """Unit of the bound, for the table."""
+    """Unit of the bound and the value, for the table."""
     column: str
     """The record's column it bounds (:class:`~formation_bench.pipeline.record.RunRecord`)."""
+    decimals: int = 3
+    """Decimals the table shows of the measured value (0 for a count)."""
+
+    @property
+    def label_with_unit(self) -> str:
+        """The label with the unit in its parentheses: ``tracking error max (m)``,
+        ``UAV 1 solves (of 240; paper: 157)``."""
+        what, opened, note = self.label.partition(" (")
+        return f"{what} ({self.unit}; {note}" if opened else f"{what} ({self.unit})"
+
+    def shown(self, value: float) -> str:
+        """A measured value as the table prints it, e.g. ``0.395`` or ``97``."""
+        return f"{value:.{self.decimals}f}"
 
     def column_for(self, reading: Reading) -> str:
         """The column holding this figure's value in ``reading`` (solve counts have one)."""
@@ -58,9 +71,9 @@ PAPER_FIGURES: tuple[PaperFigure, ...] = (
     PaperFigure(True, "d23 error max", 0.3, "m", "distance_error_max_m_d23"),
     PaperFigure(True, "d31 error max", 0.25, "m", "distance_error_max_m_d31"),
     # The paper reports 157/155/160 solves of 240 and claims at most two thirds.
-    PaperFigure(True, "UAV 1 solves (paper: 157)", 160, "of 240", "solves_uav1"),
-    PaperFigure(True, "UAV 2 solves (paper: 155)", 160, "of 240", "solves_uav2"),
-    PaperFigure(True, "UAV 3 solves (paper: 160)", 160, "of 240", "solves_uav3"),
+    PaperFigure(True, "UAV 1 solves (paper: 157)", 160, "of 240", "solves_uav1", decimals=0),
+    PaperFigure(True, "UAV 2 solves (paper: 155)", 160, "of 240", "solves_uav2", decimals=0),
+    PaperFigure(True, "UAV 3 solves (paper: 160)", 160, "of 240", "solves_uav3", decimals=0),
 )
 
 
@@ -78,9 +91,11 @@ def comparison_rows(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
             {
                 "run": "with trigger" if figure.trigger else "without trigger",
                 "figure": figure.label,
+                "figure_with_unit": figure.label_with_unit,
                 "paper": figure.limit,
                 "unit": figure.unit,
                 "measured": value,
+                "shown": figure.shown(value),
                 "holds": value <= figure.limit,
             }
         )
@@ -88,16 +103,39 @@ def comparison_rows(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def format_table(rows: list[dict[str, Any]]) -> str:
-    """A plain-text table of :func:`comparison_rows`."""
-    header = f"{'run':<16} {'figure':<27} {'paper':>10} {'measured':>10}  holds"
-    lines = [header, "-" * len(header)]
-    for row in rows:
-        paper = f"<= {row['paper']:g}"
-        lines.append(
-            f"{row['run']:<16} {row['figure']:<27} {paper:>10} {row['measured']:>10.3f}  "
-            f"{'yes' if row['holds'] else 'NO'}  {row['unit']}"
+    """A plain-text table of :func:`comparison_rows`: each figure with its unit, the paper's
+    bound, the measured value and whether the bound holds."""
+    header = ("run", "figure", "paper", "measured", "holds")
+    bounds = _on_point([f"{row['paper']:g}" for row in rows])
+    cells = [header] + [
+        (
+            row["run"],
+            row["figure_with_unit"],
+            f"<= {bound}",
+            row["shown"],
+            "yes" if row["holds"] else "NO",
         )
+        for row, bound in zip(rows, bounds, strict=True)
+    ]
+    widths = [max(len(line[k]) for line in cells) for k in range(len(header))]
+    right = {"paper", "measured"}  # numbers: aligned on their last digit, bounds on the point
+    lines = [
+        "  ".join(
+            f"{text:>{width}}" if name in right else f"{text:<{width}}"
+            for name, text, width in zip(header, line, widths, strict=True)
+        ).rstrip()
+        for line in cells
+    ]
+    lines.insert(1, "-" * max(map(len, lines)))
     return "\n".join(lines)
+
+
+def _on_point(numbers: list[str]) -> list[str]:
+    """Numbers padded to one width with their decimal points (or ends) in one column."""
+    parts = [number.partition(".") for number in numbers]
+    whole = max(len(w) for w, _, _ in parts)
+    fraction = max(len(dot + f) for _, dot, f in parts)
+    return [f"{w:>{whole}}{dot + f:<{fraction}}" for w, dot, f in parts]
 
 
 def format_seed_table(rows_by_seed: dict[int, list[dict[str, Any]]]) -> str:

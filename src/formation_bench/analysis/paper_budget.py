@@ -29,7 +29,8 @@ REFERENCES = ("ipopt", "ltv-osqp")
 """Registered names of the exact solvers whose reached figures set the second target."""
 
 SHIPPED_RUNS = Path(__file__).parent / "data" / "paper_budget_runs.csv"
-"""The per-run figure values of the shipped ``paper-budget`` sweep (see docs/benchmarks.md)."""
+"""The per-run figure values of the shipped ``paper-budget`` sweep (see
+docs/explanation/benchmarks.md)."""
 
 KEYS = ("optimizer", "optimizer_name", "budget", "budget_max_evaluations", "seed", "trigger")
 """The columns that say which run a row is."""

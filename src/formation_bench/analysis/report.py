@@ -24,7 +24,7 @@ from pathlib import Path
 import pandas as pd
 
 from formation_bench.analysis import paper_budget, variant_pairs
-from formation_bench.analysis.cells import number_cell, p_cell
+from formation_bench.analysis.block_table import BlockTables, block_lines
 from formation_bench.analysis.comparison import (
     Report,
     analyse,
@@ -58,29 +58,35 @@ NOT_APPLICABLE: dict[str, str] = {
 def to_markdown(
     report: Report, results: pd.DataFrame, *, metrics: list[str] | None = None, title: str = ""
 ) -> str:
-    """The report as Markdown: one section per block, one table per metric."""
+    """The report as Markdown: one section per block, its configurations as rows and its
+    metrics as columns (:mod:`~formation_bench.analysis.block_table`). Without ``metrics``,
+    every metric: the headline ones first, then the others under "Further metrics"."""
     frame = prepare(results)
     factor = report.factor
     bases = " and ".join(repr(b) for b in report.baselines)
     chosen = [m for m in (metrics or report.metrics) if m in report.metrics]
+    headline = [m for m in headline_metrics() if m in chosen] if metrics is None else chosen
+    further = [m for m in chosen if m not in headline]
     lines = [f"# {title or 'Sweep report'}", ""]
     lines.append(
         f"{len(frame)} runs; compared: {factor} (baseline {bases}); levels: "
-        f"{', '.join(levels_of(frame, factor))}. Paired by seed; Wilcoxon signed-rank "
-        f"(two-sided), Holm-adjusted per block, metric and baseline; A12 = P({factor} > "
-        "baseline) "
-        "(< 0.5: lower values than the baseline). CI: bootstrap 95 % CI of the median. "
-        "Rank: Friedman average rank, 1 = lowest."
+        f"{', '.join(levels_of(frame, factor))}. Each block below compares the levels at one "
+        "setting of the other factors: one table of values with a column per metric (its unit "
+        "in the header), then the Friedman ranks and the paired tests against each baseline "
+        "with the same rows and columns. A metric with one value in every run of a block has "
+        "no column; the line under the values names it."
     )
     lines.append("")
     for note in report.notes:
         lines += [f"Note: {note}", ""]
-    tables = _Tables(report)
-    for block_values, _ in frame.groupby(report.block_factors, sort=False):
+    tables = BlockTables(report)
+    for block_values, block in frame.groupby(report.block_factors, sort=False):
         block_key = dict(zip(report.block_factors, block_values, strict=True))
         lines += [f"## {describe_block(block_key, frame) or 'all runs'}", ""]
-        for metric in chosen:
-            lines += _metric_table(report, block_key, metric, tables)
+        lines += block_lines(tables, block_key, block, headline, max_columns=len(headline) or 1)
+        if further:
+            lines += ["### Further metrics", ""]
+            lines += block_lines(tables, block_key, block, further)
     return "\n".join(lines).rstrip() + "\n"
 
 
@@ -98,81 +104,6 @@ def repeat_section(results: pd.DataFrame) -> str:
         f"{'on' if first['trigger'] else 'off'}, seed {first['seed']}):\n\n"
         f"```\n{first['command']}\n```\n"
     )
-
-
-class _Tables:
-    """The report's tables split by block and metric once: filtering them for every block and
-    metric took 6.4 s per Markdown pass on the swarm suite's 14 blocks and 76 metrics, the
-    split 2.5-3 s (same text)."""
-
-    NAMES = ("summary", "wilcoxon", "ranks", "friedman")
-
-    def __init__(self, report: Report) -> None:
-        self.block_factors = report.block_factors
-        self.tables = {name: getattr(report, name) for name in self.NAMES}
-        keys = [*report.block_factors, "metric"]
-        self.groups = {
-            name: {} if table.empty else dict(list(table.groupby(keys, sort=False)))
-            for name, table in self.tables.items()
-        }
-
-    def select(self, name: str, block_key: dict[str, str], metric: str) -> pd.DataFrame:
-        """The rows of table ``name`` of this block and metric."""
-        table = self.tables[name]
-        if table.empty:
-            return table
-        key = (*(block_key[f] for f in self.block_factors), metric)
-        return self.groups[name].get(key, table.iloc[0:0])
-
-
-def _metric_table(
-    report: Report, block_key: dict[str, str], metric: str, tables: _Tables
-) -> list[str]:
-    factor = report.factor
-    summary = tables.select("summary", block_key, metric).set_index(factor)
-    tests = tables.select("wilcoxon", block_key, metric)
-    tests = tests.set_index(factor) if not tests.empty else tests
-    ranks = tables.select("ranks", block_key, metric)
-    ranks = ranks.set_index(factor) if not ranks.empty else ranks
-    friedman = tables.select("friedman", block_key, metric)
-    several = len(report.baselines) > 1
-    header = f"| {factor} | n | median | IQR | 95 % CI |"
-    rule = "|---|---:|---:|---:|---|"
-    for base in report.baselines:
-        header += f" p (Holm) vs {base} | A12 vs {base} |" if several else " p (Holm) | A12 |"
-        rule += "---:|---:|"
-    if not ranks.empty:
-        header += " rank |"
-        rule += "---:|"
-    lines = [f"**{metric}**", "", header, rule]
-    for level, row in summary.iterrows():
-        cells = [
-            str(level),
-            str(row["n"]),
-            number_cell(row["median"]),
-            number_cell(row["iqr"]),
-            f"{number_cell(row['ci_low'])} – {number_cell(row['ci_high'])}",
-        ]
-        for base in report.baselines:
-            against = tests[tests["baseline"] == base] if not tests.empty else tests
-            if level in getattr(against, "index", []):
-                test = against.loc[level]
-                mark = " *" if test["significant"] else ""
-                cells += [p_cell(test["p_holm"]) + mark, f"{test['a12']:.2f}"]
-            else:
-                cells += ["baseline" if level == base else "–", "–"]
-        if not ranks.empty:
-            cells.append(f"{ranks.loc[level, 'average_rank']:.2f}" if level in ranks.index else "–")
-        lines.append("| " + " | ".join(cells) + " |")
-    if not friedman.empty:
-        f = friedman.iloc[0]
-        lines.append("")
-        lines.append(
-            f"Friedman: chi2 = {number_cell(f['statistic'])}, p = {p_cell(f['p'])}, "
-            f"{int(f['n_seeds'])} seeds x {int(f['k'])} levels."
-        )
-    lines.append("")
-    return lines
 
 
 # --- figures -------------------------------------------------------------------------------

@@ -5,9 +5,11 @@ obstacle and collision penalties (``obstacles``).
 What a run's scenario is (its UAVs, graph, disturbance family, penalties) is read from its
 registered name and overrides (:func:`scenario_columns`), never from its label, so every
 results folder that varies these gets the section, whatever the suite is called. A section
-tabulates a few metrics against its *condition* (N and graph; the disturbance level; the
-penalties) with the median and the bootstrap 95 % CI of the median over the seeds, and carries
-the report's statistics (:func:`~formation_bench.analysis.comparison.analyse`):
+has one table per *block*, one comparison (an (N, graph) cell against the complete graph; a
+disturbance level against the nominal runs; a scenario's penalties on against off): the
+optimisers as rows, the metrics as columns (constant ones on a line), each cell the median
+over the seeds against the reference's median. It carries the report's statistics
+(:func:`~formation_bench.analysis.comparison.analyse`):
 
 - every condition against its baseline condition (the complete graph at the same N; the
   nominal scenario; the penalties off), same optimiser, trigger and budget, paired by seed:
@@ -15,7 +17,9 @@ the report's statistics (:func:`~formation_bench.analysis.comparison.analyse`):
   A12 = P(condition > baseline);
 - the optimisers within every condition: Friedman's average rank over the seeds that all of
   them ran (1 = lowest value) and its p-value, and every optimiser against the baseline
-  optimiser (Wilcoxon, Holm-adjusted, A12).
+  optimiser (Wilcoxon, Holm-adjusted, A12);
+- in the swarm section, the optimisers' Friedman ranks across all cells (blocks: cell and
+  seed, :func:`overall_ranking`).
 
 :func:`write_sections` writes ``<section>.md`` and ``<section>.csv`` (one row per condition,
 trigger, budget, optimiser and metric) and the figures, and returns the Markdown that
@@ -33,7 +37,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from formation_bench.analysis.cells import number_cell, p_cell
+from formation_bench.analysis import stats
+from formation_bench.analysis.block_table import absent, constant_line, constant_metrics
+from formation_bench.analysis.cells import MetricColumn, metric_column, p_cell
 from formation_bench.analysis.comparison import analyse, prepare
 from formation_bench.analysis.stats import SIGNIFICANCE
 from formation_bench.mpc.metrics import Better, metric_of
@@ -63,9 +69,6 @@ OBSTACLE_METRICS = (
     "tracking_error_max_m",
     "distance_error_rms_m",
 )
-HEADINGS = {"n_uav": "N", "scenario": "level", "scenario_name": "scenario"}
-"""Column headings of the Markdown tables, where the column's name is not one."""
-
 NOMINAL = "nominal"
 PENALTIES_OFF = "off"
 COMPLETE = "complete"
@@ -271,28 +274,41 @@ def section_table(
 
 # --- Markdown ----------------------------------------------------------------------------------
 
+KEYS = ["scenario", "trigger", "budget", "optimizer", "metric"]
+"""A row of :func:`section_table`: one condition, setting, optimiser and metric."""
+SETTING = ("trigger", "budget")
+"""The factors every comparison of a section holds fixed (named in a block's heading when
+they vary over the section)."""
+
 
 def _is_true(value: object) -> bool:
     # a merged column of test outcomes holds booleans and NaN (no test)
     return isinstance(value, bool | np.bool_) and bool(value)
 
 
-def _cell(row: pd.Series, *, versus: bool) -> str:
-    if not row["n"]:
+def _row(cells: list[str]) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def _value_cell(row: dict | None, reference: dict | None, column: MetricColumn) -> str:
+    """The median; against a reference, ``median vs reference median, A12 x.xx`` (``*``: the
+    Holm-adjusted Wilcoxon p below the significance level)."""
+    if row is None or not row["n"]:
         return "–"
-    text = (
-        f"{number_cell(row['median'])} "
-        f"[{number_cell(row['ci_low'])}, {number_cell(row['ci_high'])}]"
-    )
+    text = column.value(row["median"])
     if row["n"] < row["seeds"]:  # some runs have no value (e.g. never settled)
-        text += f" (n {row['n']})"
-    if versus and pd.notna(row.get("condition_a12")):
-        mark = "*" if _is_true(row.get("condition_significant")) else ""
-        text += f" A12 {row['condition_a12']:.2f}{mark}"
+        text += f" (n {int(row['n'])})"
+    if reference is not None:
+        text += f" vs {column.value(reference['median'])}"
+        if pd.notna(row.get("condition_a12")):
+            mark = "*" if _is_true(row.get("condition_significant")) else ""
+            text += f", A12 {row['condition_a12']:.2f}{mark}"
     return text
 
 
-def _rank_cell(row: pd.Series) -> str:
+def _rank_cell(row: dict | None) -> str:
+    if row is None:
+        return "–"
     rank = row.get("average_rank")
     text = f"{rank:.2f}" if pd.notna(rank) else ""
     if pd.notna(row.get("optimizer_a12")):
@@ -301,44 +317,26 @@ def _rank_cell(row: pd.Series) -> str:
     return text.strip() or ("baseline" if row.get("is_optimizer_baseline") else "–")
 
 
-def _grid(
-    table: pd.DataFrame,
-    rows: list[str],
-    column: str,
-    cell: Callable[[pd.Series], str],
-    heading: Callable[[object], str],
-    extra: tuple[str, Callable[[pd.DataFrame], str]] | None = None,
-) -> list[str]:
-    """A Markdown table: one line per value of ``rows`` (in table order), one column per
-    value of ``column`` (ascending if numbers, else in table order), ``cell`` of each row of
-    ``table``; ``extra`` adds a last column computed from each line's rows."""
-    columns = list(dict.fromkeys(table[column]))
-    if pd.api.types.is_numeric_dtype(table[column]):
-        columns = sorted(columns)
-    names = [HEADINGS.get(r, r) for r in rows]
-    header = [*names, *(heading(c) for c in columns), *([extra[0]] if extra else [])]
-    lines = [
-        "| " + " | ".join(header) + " |",
-        "|" + "---|" * len(rows) + "---:|" * (len(header) - len(rows)),
+def _higher_is_better(metrics: list[str] | tuple[str, ...]) -> list[str]:
+    return [
+        metric_column(m).name
+        for m in metrics
+        if (info := metric_of(m)) is not None and info.better is Better.HIGHER
     ]
-    for key, group in table.groupby(rows, sort=False):
-        key = key if isinstance(key, tuple) else (key,)
-        cells = {r[column]: cell(r) for _, r in group.iterrows()}
-        values = [str(k) for k in key] + [cells.get(c, "–") for c in columns]
-        if extra:
-            values.append(extra[1](group))
-        lines.append("| " + " | ".join(values) + " |")
-    return [*lines, ""]
 
 
-def _friedman_cell(group: pd.DataFrame) -> str:
-    if "friedman_p" not in group or group["friedman_p"].isna().all():
-        return "–"
-    return p_cell(float(group["friedman_p"].dropna().iloc[0]))
+def _worst_note(metrics: list[str] | tuple[str, ...]) -> str:
+    higher = _higher_is_better(metrics)
+    if not higher:
+        return ""
+    return f", but rank 1 is the worst on {', '.join(higher)} (higher is better)"
 
 
-def _varying(table: pd.DataFrame, columns: tuple[str, ...] = ("trigger", "budget")) -> list[str]:
-    return [c for c in columns if table[c].nunique() > 1]
+RANKED = (
+    "the closed-loop metrics as their columns name them (the errors after the settle time, "
+    "i.e. the steady state; counts and times over the whole run)"
+)
+"""What the ranks rank, for the sentence above a ranks table."""
 
 
 def power_note(table: pd.DataFrame) -> str:
@@ -357,16 +355,266 @@ def power_note(table: pd.DataFrame) -> str:
     )
 
 
-def _rank_text(condition: str, metric: str, baseline: str) -> str:
-    info = metric_of(metric)
-    higher = info is not None and info.better is Better.HIGHER
-    worst = " (the worst here: a higher separation is better)" if higher else ""
-    return (
-        f"Optimiser ranks on `{metric}`: within each {condition}, each optimiser's average "
-        f"Friedman rank over the seeds all of them ran, 1 = lowest value{worst}; Friedman p: "
-        f"do the optimisers differ; in brackets A12 = P(optimiser > {baseline}), * "
-        f"Holm-adjusted Wilcoxon p < {SIGNIFICANCE:g} against {baseline}, paired by seed."
-    )
+@dataclass(frozen=True)
+class Block:
+    """One comparison of a section: the conditions (scenario labels) its values table shows,
+    each against its reference condition where it has one, at one setting."""
+
+    heading: str
+    setting: tuple[str, str]
+    """Trigger and budget."""
+    shown: tuple[str, ...]
+    ranked: tuple[str, ...] = ()
+    """The conditions whose optimiser ranks the block shows (none: the section ranks)."""
+
+
+class _Tables:
+    """A section's table by row, and how its blocks print."""
+
+    def __init__(
+        self,
+        runs: pd.DataFrame,
+        table: pd.DataFrame,
+        metrics: tuple[str, ...],
+        condition: tuple[str, Callable[[str], str]] | None = None,
+    ) -> None:
+        self.runs = runs
+        self.table = table
+        self.metrics = [m for m in metrics if m in runs]
+        self.rows = table.set_index(KEYS).to_dict("index")
+        self.optimizers = list(dict.fromkeys(table["optimizer"]))
+        self.baseline = _baseline_optimizer(table)
+        self.condition = condition
+        """Heading and label of the condition column, where a table shows several."""
+        described = table.drop_duplicates("scenario").set_index("scenario")
+        self.reference = (
+            described["condition_baseline"].dropna().to_dict()
+            if "condition_baseline" in described
+            else {}
+        )
+
+    def row(self, scenario: str, setting: tuple[str, str], optimizer: str, metric: str):
+        return self.rows.get((scenario, *setting, optimizer, metric))
+
+    def block_runs(self, block: Block) -> pd.DataFrame:
+        """The runs a block compares: its conditions, their references and the ranked ones."""
+        scenarios = {*block.shown, *block.ranked}
+        scenarios |= {self.reference[s] for s in block.shown if s in self.reference}
+        trigger, budget = block.setting
+        runs = self.runs
+        mask = (runs["trigger"] == trigger) & (runs["budget"] == budget)
+        return runs[mask & runs["scenario"].isin(scenarios)]
+
+    def _lead(self, scenarios: tuple[str, ...]) -> tuple[list[str], Callable[[str], list[str]]]:
+        if self.condition is None or len(scenarios) < 2:
+            return [], lambda _: []
+        heading, label = self.condition
+        return [heading], lambda scenario: [label(scenario)]
+
+    def values(self, block: Block, columns: list[MetricColumn]) -> list[str]:
+        lead, label = self._lead(block.shown)
+        lines = [
+            _row([*lead, "optimizer", *(c.header for c in columns)]),
+            "|" + "---|" * (len(lead) + 1) + "---:|" * len(columns),
+        ]
+        for scenario in block.shown:
+            reference = self.reference.get(scenario)
+            for optimizer in self.optimizers:
+                cells = []
+                for column in columns:
+                    row = self.row(scenario, block.setting, optimizer, column.column)
+                    versus = None
+                    if reference is not None:
+                        versus = self.row(reference, block.setting, optimizer, column.column)
+                    cells.append(_value_cell(row, versus, column))
+                if any(c != "–" for c in cells) or not columns:
+                    lines.append(_row([*label(scenario), optimizer, *cells]))
+        return lines
+
+    def tied(self, block: Block, metric: str) -> bool:
+        """Whether every optimiser has the same average rank on ``metric`` in every ranked
+        condition of ``block``."""
+        ranks = [
+            row.get("average_rank")
+            for scenario in block.ranked
+            for optimizer in self.optimizers
+            if (row := self.row(scenario, block.setting, optimizer, metric)) is not None
+        ]
+        if not ranks or all(pd.isna(r) for r in ranks):
+            return False
+        by_condition = [
+            {
+                round(float(row["average_rank"]), 9)
+                for optimizer in self.optimizers
+                if (row := self.row(scenario, block.setting, optimizer, metric)) is not None
+                and pd.notna(row.get("average_rank"))
+            }
+            for scenario in block.ranked
+        ]
+        return all(len(ranks) <= 1 for ranks in by_condition)
+
+    def ranks(self, block: Block, columns: list[MetricColumn], what: str) -> list[str]:
+        """The optimisers' ranks in the block's ranked conditions; a metric on which every
+        rank is tied is named on one line instead."""
+        if not block.ranked or not columns:
+            return []
+        tied = [c for c in columns if self.tied(block, c.column)]
+        ranked = [c for c in columns if c not in tied]
+        tied_line = (
+            "Every optimiser has the same average rank (Friedman p 1.000) on: "
+            + ", ".join(c.name for c in tied)
+            + "."
+        )
+        if not ranked:
+            return [f"Ranks within {what}: no ranks table. {tied_line}", ""]
+        lead, label = self._lead(block.ranked)
+        lines = [
+            f"Optimiser ranks within {what}: each closed-loop metric's average Friedman rank "
+            f"over the seeds, 1 = the lowest value{_worst_note([c.column for c in ranked])}; "
+            f"in brackets A12 = P(optimiser > {self.baseline}), * Holm-adjusted p < "
+            f"{SIGNIFICANCE:g}.",
+            "",
+            _row([*lead, "optimizer", *(c.header for c in ranked)]),
+            "|" + "---|" * (len(lead) + 1) + "---:|" * len(ranked),
+        ]
+        for scenario in block.ranked:
+            for optimizer in self.optimizers:
+                cells = [
+                    _rank_cell(self.row(scenario, block.setting, optimizer, c.column))
+                    for c in ranked
+                ]
+                lines.append(_row([*label(scenario), optimizer, *cells]))
+        for scenario in block.ranked:
+            cells = []
+            for column in ranked:
+                rows = [
+                    self.row(scenario, block.setting, o, column.column) for o in self.optimizers
+                ]
+                found = [r for r in rows if r is not None and pd.notna(r.get("friedman_p"))]
+                cells.append(
+                    f"{p_cell(found[0]['friedman_p'])} ({int(found[0]['friedman_seeds'])})"
+                    if found
+                    else "–"
+                )
+            lines.append(_row([*label(scenario), "Friedman p (seeds)", *cells]))
+        return [*lines, "", *([tied_line, ""] if tied else [])]
+
+    def block(self, block: Block, what: str) -> tuple[str, list[str]]:
+        """The Markdown of ``block`` and the metrics it has a column for: its values table,
+        the line naming the metrics constant over its runs, its ranks."""
+        runs = self.block_runs(block)
+        metrics = [m for m in self.metrics if not absent(runs, m)]
+        constant = constant_metrics(runs, metrics)
+        columns = [metric_column(m, runs[m]) for m in metrics if m not in constant]
+        lines = [block.heading, ""]
+        if columns:
+            lines += [*self.values(block, columns), ""]
+        if constant:
+            lines += [constant_line(constant), ""]
+        lines += self.ranks(block, columns, what)
+        return "\n".join(lines), [c.column for c in columns]
+
+
+def _varying(table: pd.DataFrame) -> list[str]:
+    return [c for c in SETTING if table[c].nunique() > 1]
+
+
+def _setting_text(setting: tuple[str, str], varying: list[str]) -> str:
+    named = zip(SETTING, setting, strict=True)
+    return "".join(f", {name} {value}" for name, value in named if name in varying)
+
+
+def _settings(table: pd.DataFrame) -> list[tuple[str, str]]:
+    """The (trigger, budget) settings in table order (the trigger on first)."""
+    return list(dict.fromkeys(zip(table["trigger"], table["budget"], strict=True)))
+
+
+def overall_ranking(runs: pd.DataFrame, metrics: tuple[str, ...], order: list[str]) -> pd.DataFrame:
+    """The optimisers' Friedman ranks across every condition of ``runs``, per trigger and
+    budget setting and metric: the blocks are the (condition, seed) pairs that every optimiser
+    ran, the treatments the optimisers (in ``order``). One row per setting, metric and
+    optimiser: ``average_rank``, ``friedman_p``, ``friedman_chi2`` and ``friedman_blocks``."""
+    rows = []
+    for (trigger, budget), setting in runs.groupby(list(SETTING), sort=False):
+        for metric in metrics:
+            if metric not in setting:
+                continue
+            values = setting.pivot_table(
+                index=["scenario", "seed"], columns="optimizer", values=metric, aggfunc="first"
+            ).reindex(columns=[o for o in order if o in set(setting["optimizer"])])
+            result = stats.friedman(values)
+            for optimizer, rank in result.average_ranks.items():
+                rows.append(
+                    {
+                        "trigger": trigger,
+                        "budget": budget,
+                        "metric": metric,
+                        "optimizer": optimizer,
+                        "average_rank": rank,
+                        "friedman_p": result.pvalue,
+                        "friedman_chi2": result.statistic,
+                        "friedman_blocks": result.n_blocks,
+                    }
+                )
+    return pd.DataFrame(rows)
+
+
+def _ranking_lines(
+    ranking: pd.DataFrame, runs: pd.DataFrame, metrics: tuple[str, ...], varying: list[str]
+) -> list[str]:
+    """The section's ranking table per setting: optimisers as rows, metrics as columns, the
+    Friedman p and number of blocks in the last row; tied metrics on one line."""
+    lines = []
+    for setting in _settings(ranking) if not ranking.empty else []:
+        trigger, budget = setting
+        here = ranking[(ranking["trigger"] == trigger) & (ranking["budget"] == budget)]
+        setting_runs = runs[(runs["trigger"] == trigger) & (runs["budget"] == budget)]
+        present = [m for m in metrics if m in setting_runs and not absent(setting_runs, m)]
+        constant = constant_metrics(setting_runs, present)
+        ranked, tied = [], []
+        for metric in (m for m in present if m not in constant):
+            ranks = here.loc[here["metric"] == metric, "average_rank"].dropna()
+            if ranks.empty:
+                continue
+            (tied if ranks.round(9).nunique() == 1 else ranked).append(metric)
+        title = f"### Ranking across all cells{_setting_text(setting, varying)}"
+        if not ranked:
+            lines += [
+                title,
+                "",
+                "Every optimiser has the same average rank on every metric: no ranking table.",
+                "",
+            ]
+            continue
+        columns = [metric_column(m, setting_runs[m]) for m in ranked]
+        by_metric = {m: here[here["metric"] == m].set_index("optimizer") for m in ranked}
+        lines += [
+            title,
+            "",
+            "Each optimiser's average Friedman rank on " + RANKED + ", over the blocks (N, "
+            "graph, seed) that every optimiser ran, 1 = the lowest value"
+            f"{_worst_note(ranked)}; last row: Friedman's p (blocks).",
+            "",
+            _row(["optimizer", *(c.header for c in columns)]),
+            "|---|" + "---:|" * len(columns),
+        ]
+        for optimizer in dict.fromkeys(here["optimizer"]):
+            cells = []
+            for metric in ranked:
+                rank = by_metric[metric]["average_rank"].get(optimizer, math.nan)
+                cells.append("–" if pd.isna(rank) else f"{rank:.2f}")
+            lines.append(_row([optimizer, *cells]))
+        cells = []
+        for metric in ranked:
+            first = by_metric[metric].iloc[0]
+            cells.append(f"{p_cell(first['friedman_p'])} ({int(first['friedman_blocks'])})")
+        lines += [_row(["Friedman p (blocks)", *cells]), ""]
+        if tied:
+            names = ", ".join(metric_column(m).name for m in tied)
+            lines += [f"Every optimiser has the same average rank on: {names}.", ""]
+        if constant:
+            lines += [constant_line(constant).replace("of this block", "of these cells"), ""]
+    return lines
 
 
 # --- the sections ------------------------------------------------------------------------------
@@ -385,12 +633,24 @@ class Section:
     """:func:`section_table`, sorted by condition."""
     intro: str
     """The heading and what the tables show (with :func:`power_note`)."""
-    parts: dict[str, str]
-    """Per metric, its tables (Markdown)."""
+    blocks: dict[str, str]
+    """Per block (by its heading), its tables (Markdown): the optimisers as rows, the metrics
+    that vary over the block's runs as columns, the others on one line."""
+    block_columns: dict[str, tuple[str, ...]]
+    """Per block, the metrics its tables have a column for."""
+    ranking: pd.DataFrame
+    """:func:`overall_ranking` of the swarm section; empty in the others (they rank per
+    block)."""
+    ranking_text: str = ""
+
+    @property
+    def body(self) -> str:
+        """Every block's tables, then the section's ranking."""
+        return "\n".join([*self.blocks.values(), self.ranking_text]).rstrip() + "\n"
 
     @property
     def markdown(self) -> str:
-        return "\n".join([self.intro, *self.parts.values()]).rstrip() + "\n"
+        return "\n".join([self.intro, self.body]).rstrip() + "\n"
 
 
 def _baseline_optimizer(table: pd.DataFrame) -> str:
@@ -426,22 +686,32 @@ def _intro(heading: str, text: str, table: pd.DataFrame) -> str:
     return "\n".join([heading, "", text, "", *([note, ""] if note else [])])
 
 
-def _parts(
-    table: pd.DataFrame, metrics: tuple[str, ...], tables: Callable[[pd.DataFrame, str], list[str]]
-) -> dict[str, str]:
-    parts = {}
-    for metric in metrics:
-        rows = table[table["metric"] == metric]
-        if not rows.empty:
-            parts[metric] = "\n".join(tables(rows, metric))
-    return parts
+def _rank_legend(metrics: tuple[str, ...], baseline: str, within: str) -> str:
+    return (
+        f"Under a block's values, the optimisers' ranks within {within}: each optimiser's "
+        f"average Friedman rank on {RANKED}, over the seeds all of them ran, 1 = the lowest "
+        f"value{_worst_note(metrics)}; in brackets A12 = P(optimiser > {baseline}), * "
+        f"Holm-adjusted Wilcoxon p < {SIGNIFICANCE:g} against {baseline}, paired by seed; last "
+        "row: Friedman's p (seeds). A metric on which every optimiser has the same rank is "
+        "named on a line instead."
+    )
+
+
+def _assemble(
+    tables: _Tables, blocks: list[tuple[Block, str]]
+) -> tuple[dict[str, str], dict[str, tuple[str, ...]]]:
+    texts, columns = {}, {}
+    for block, what in blocks:
+        texts[block.heading], shown = tables.block(block, what)
+        columns[block.heading] = tuple(shown)
+    return texts, columns
 
 
 def swarm_section(runs: pd.DataFrame) -> Section:
-    """Metrics against the number of UAVs per graph and optimiser; graphs against the
-    complete graph at the same N; optimiser ranks per N and graph."""
+    """Per (N, graph) cell, the optimisers' metrics, off the complete graph against the
+    complete graph at the same N; the optimisers ranked across all cells."""
     frame = prepare(runs)
-    # two scenarios of one N on one graph (e.g. two 5-UAV formations) keep their own lines
+    # two scenarios of one N on one graph (e.g. two 5-UAV formations) keep their own cells
     labels = frame.groupby(["n_uav", "graph"])["scenario"].transform("nunique")
     shared = labels > 1
     frame.loc[shared, "graph"] = frame["graph"] + " (" + frame["scenario"] + ")"
@@ -453,46 +723,51 @@ def swarm_section(runs: pd.DataFrame) -> Section:
     table["graph_order"] = table["graph"].map(graph_order)
     table = _finish(table, ["graph_order", "optimizer", "n_uav"])
     varying = _varying(table)
-    baseline = _baseline_optimizer(table)
-
-    def tables(rows: pd.DataFrame, metric: str) -> list[str]:
-        ranked = rows.sort_values(["n_uav", "graph_order"], kind="stable")
-        return [
-            f"**{metric}** against N",
-            "",
-            *_grid(
-                rows,
-                [*varying, "graph", "optimizer"],
-                "n_uav",
-                lambda r: _cell(r, versus=True),
-                lambda n: f"N = {n}",
-            ),
-            _rank_text("(N, graph)", metric, baseline),
-            "",
-            *_grid(
-                ranked,
-                [*varying, "n_uav", "graph"],
-                "optimizer",
-                _rank_cell,
-                str,
-                ("Friedman p", _friedman_cell),
-            ),
-        ]
-
+    tables = _Tables(frame, table, SWARM_METRICS)
+    cells = table.drop_duplicates(["trigger", "budget", "scenario"]).sort_values(
+        ["n_uav", "graph_order"], kind="stable"
+    )
+    blocks = []
+    for setting in _settings(table):
+        here = cells[(cells["trigger"] == setting[0]) & (cells["budget"] == setting[1])]
+        for _, cell in here.iterrows():
+            versus = pd.notna(cell.get("condition_baseline"))
+            heading = (
+                f"### N = {cell['n_uav']}, {cell['graph']} graph"
+                + (" against the complete graph" if versus else "")
+                + _setting_text(setting, varying)
+            )
+            blocks.append((Block(heading, setting, (cell["scenario"],)), ""))
+    texts, columns = _assemble(tables, blocks)
+    ranking = overall_ranking(frame, SWARM_METRICS, tables.optimizers)
     intro = _intro(
         "## Swarm: metrics against the number of UAVs",
-        "Median [bootstrap 95 % CI of the median] over the seeds, per graph and optimiser. "
-        "Off the complete graph, A12 = P(graph > complete graph) at the same N, same "
-        f"optimiser, paired by seed; * Holm-adjusted Wilcoxon p < {SIGNIFICANCE:g} (adjusted "
-        "over the graphs compared at that N).",
+        "One table per (N, graph) cell: the optimisers as rows, the metrics as columns, each "
+        "cell the median over the seeds. Off the complete graph, `median vs the complete "
+        "graph's median` at the same N, same optimiser, and A12 = P(graph > complete graph), "
+        f"paired by seed; * Holm-adjusted Wilcoxon p < {SIGNIFICANCE:g} (adjusted over the "
+        "graphs compared at that N). The bootstrap 95 % CIs of the medians are in swarm.csv. "
+        "After the cells, the optimisers ranked across all of them.",
         table,
     )
-    parts = _parts(table, SWARM_METRICS, tables)
-    return Section("swarm", "Swarm", SWARM_METRICS, frame, table, intro, parts)
+    ranking_text = "\n".join(_ranking_lines(ranking, frame, SWARM_METRICS, varying))
+    return Section(
+        name="swarm",
+        title="Swarm",
+        metrics=SWARM_METRICS,
+        runs=frame,
+        table=table,
+        intro=intro,
+        blocks=texts,
+        block_columns=columns,
+        ranking=ranking,
+        ranking_text=ranking_text,
+    )
 
 
 def robustness_section(runs: pd.DataFrame) -> Section:
-    """Metrics per disturbance level against the nominal scenario; optimiser ranks per level."""
+    """Per setting, the optimisers' metrics in the nominal scenario, then under each
+    disturbance or fault against the nominal runs; the optimisers' ranks per block."""
     frame = prepare(runs)
     group = ["scenario_name", "n_uav", "graph"]
     conditions = condition_tests(frame, ROBUSTNESS_METRICS, group, frame["family"] == NOMINAL)
@@ -500,45 +775,50 @@ def robustness_section(runs: pd.DataFrame) -> Section:
         section_table(frame, ROBUSTNESS_METRICS, conditions),
         ["level_order", "optimizer"],
     )
-    baseline = _baseline_optimizer(table)
-    splits = _varying(table)
-
-    def tables(rows: pd.DataFrame, metric: str) -> list[str]:
-        lines = []
-        for key, part in rows.groupby(splits, sort=False) if splits else [((), rows)]:
-            key = key if isinstance(key, tuple) else (key,)
-            where = ", ".join(f"{s} {v}" for s, v in zip(splits, key, strict=True))
-            lines += [f"**{metric}** per level{', ' + where if where else ''}", ""]
-            lines += _grid(
-                part, ["family", "scenario"], "optimizer", lambda r: _cell(r, versus=True), str
-            )
-        return [
-            *lines,
-            _rank_text("level and trigger", metric, baseline),
-            "",
-            *_grid(
-                rows,
-                ["family", "scenario", *splits],
-                "optimizer",
-                _rank_cell,
-                str,
-                ("Friedman p", _friedman_cell),
-            ),
-        ]
-
+    varying = _varying(table)
+    tables = _Tables(frame, table, ROBUSTNESS_METRICS)
+    several = table["scenario_name"].nunique() > 1
+    levels = table.drop_duplicates(["trigger", "budget", "scenario"])
+    blocks = []
+    for setting in _settings(table):
+        here = levels[(levels["trigger"] == setting[0]) & (levels["budget"] == setting[1])]
+        for _, level in here.iterrows():
+            base = f"{level['scenario_name']}: " if several else ""
+            name = f"{level['family']} {level['scenario']}"
+            if level["scenario"] == level["family"]:  # the nominal run labelled "nominal"
+                name = level["scenario"]
+            versus = " against nominal" if pd.notna(level.get("condition_baseline")) else ""
+            suffix = _setting_text(setting, varying)
+            heading = f"### {base}{name}{versus}{suffix}"
+            block = Block(heading, setting, (level["scenario"],), (level["scenario"],))
+            blocks.append((block, f"{level['scenario']}{suffix}"))
+    texts, columns = _assemble(tables, blocks)
     intro = _intro(
         "## Robustness: metrics against the disturbance level",
-        "Median [bootstrap 95 % CI of the median] over the seeds. A12 = P(level > nominal), "
-        "same optimiser and trigger, paired by seed; * Holm-adjusted Wilcoxon p < "
-        f"{SIGNIFICANCE:g} (adjusted over the levels compared with the nominal one).",
+        "One table per disturbance or fault level and trigger setting: the optimisers as rows, "
+        "the metrics as columns, each cell the median over the seeds, `median vs the nominal "
+        "median`, same optimiser and trigger, and A12 = P(level > nominal), paired by seed; * "
+        f"Holm-adjusted Wilcoxon p < {SIGNIFICANCE:g} (adjusted over the levels compared with "
+        "the nominal one). The bootstrap 95 % CIs of the medians are in robustness.csv. "
+        + _rank_legend(ROBUSTNESS_METRICS, tables.baseline, "the level"),
         table,
     )
-    parts = _parts(table, ROBUSTNESS_METRICS, tables)
-    return Section("robustness", "Robustness", ROBUSTNESS_METRICS, frame, table, intro, parts)
+    return Section(
+        name="robustness",
+        title="Robustness",
+        metrics=ROBUSTNESS_METRICS,
+        runs=frame,
+        table=table,
+        intro=intro,
+        blocks=texts,
+        block_columns=columns,
+        ranking=pd.DataFrame(),
+    )
 
 
 def obstacles_section(runs: pd.DataFrame) -> Section:
-    """Intrusions, collisions, separation and tracking with the penalties on and off."""
+    """Per scenario, the optimisers' intrusions, collisions, separation and tracking with the
+    penalties on against off; the optimisers' ranks with each penalty setting."""
     frame = prepare(runs)
     conditions = condition_tests(
         frame, OBSTACLE_METRICS, ["scenario_name", "n_uav"], frame["penalties"] == PENALTIES_OFF
@@ -546,28 +826,44 @@ def obstacles_section(runs: pd.DataFrame) -> Section:
     table = section_table(frame, OBSTACLE_METRICS, conditions)
     table["penalties_order"] = table["penalties"] == PENALTIES_OFF
     table = _finish(table, ["scenario_name", "penalties_order", "optimizer"])
-    rows_by = [*_varying(table), "scenario_name", "penalties"]
-    baseline = _baseline_optimizer(table)
-
-    def tables(rows: pd.DataFrame, metric: str) -> list[str]:
-        return [
-            f"**{metric}**",
-            "",
-            *_grid(rows, rows_by, "optimizer", lambda r: _cell(r, versus=True), str),
-            _rank_text("scenario and penalty setting", metric, baseline),
-            "",
-            *_grid(rows, rows_by, "optimizer", _rank_cell, str, ("Friedman p", _friedman_cell)),
-        ]
-
+    varying = _varying(table)
+    penalties = table.drop_duplicates("scenario").set_index("scenario")["penalties"]
+    tables = _Tables(frame, table, OBSTACLE_METRICS, ("penalties", lambda s: penalties[s]))
+    blocks = []
+    for setting in _settings(table):
+        here = table[(table["trigger"] == setting[0]) & (table["budget"] == setting[1])]
+        for (name, n_uav), scenario in here.groupby(["scenario_name", "n_uav"], sort=False):
+            labels = list(dict.fromkeys(scenario["scenario"]))
+            on = [s for s in labels if penalties[s] != PENALTIES_OFF] or labels
+            off = [s for s in labels if s not in on]
+            suffix = _setting_text(setting, varying)
+            compared = " and ".join(penalties[s] for s in on)
+            versus = " against off" if off else ""
+            heading = f"### {name}, {n_uav} UAVs: penalties {compared}{versus}{suffix}"
+            block = Block(heading, setting, tuple(on), tuple(labels))
+            blocks.append((block, f"{name}, each penalty setting{suffix}"))
+    texts, columns = _assemble(tables, blocks)
     intro = _intro(
         "## Obstacles: penalties on and off",
-        "Median [bootstrap 95 % CI of the median] over the seeds, per scenario, penalties in "
-        "the local cost and optimiser. With a penalty on, A12 = P(on > off), same scenario and "
-        f"optimiser, paired by seed; * Holm-adjusted Wilcoxon p < {SIGNIFICANCE:g}.",
+        "One table per scenario: the optimisers as rows, the metrics as columns, each cell the "
+        "median over the seeds with the penalties on in the local cost, `median vs the median "
+        "with the penalties off`, same scenario and optimiser, and A12 = P(on > off), paired "
+        f"by seed; * Holm-adjusted Wilcoxon p < {SIGNIFICANCE:g}. The bootstrap 95 % CIs of "
+        "the medians are in obstacles.csv. "
+        + _rank_legend(OBSTACLE_METRICS, tables.baseline, "each penalty setting"),
         table,
     )
-    parts = _parts(table, OBSTACLE_METRICS, tables)
-    return Section("obstacles", "Obstacles", OBSTACLE_METRICS, frame, table, intro, parts)
+    return Section(
+        name="obstacles",
+        title="Obstacles",
+        metrics=OBSTACLE_METRICS,
+        runs=frame,
+        table=table,
+        intro=intro,
+        blocks=texts,
+        block_columns=columns,
+        ranking=pd.DataFrame(),
+    )
 
 
 def _groups_with(frame: pd.DataFrame, group: list[str], mask: pd.Series) -> pd.DataFrame:
@@ -630,13 +926,16 @@ def section_figures(section: Section) -> dict[str, object]:
 
 
 def write_sections(results: pd.DataFrame, folder: Path, *, figures: bool = True) -> str:
-    """Write every applicable section's Markdown, CSV and figures; returns their Markdown."""
+    """Write every applicable section's Markdown, CSV (and ``<section>_ranking.csv`` where it
+    ranks across its blocks) and figures; returns their Markdown."""
     texts = []
     for section in sections(results):
         (folder / f"{section.name}.md").write_text(section.markdown + "\n")
         section.table.drop(columns=["is_optimizer_baseline", "seeds"]).to_csv(
             folder / f"{section.name}.csv", index=False
         )
+        if not section.ranking.empty:
+            section.ranking.to_csv(folder / f"{section.name}_ranking.csv", index=False)
         texts.append(section.markdown)
         if figures:
             from formation_bench.analysis.figures import save_report_figure

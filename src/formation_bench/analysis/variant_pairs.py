@@ -14,7 +14,7 @@ from __future__ import annotations
 import pandas as pd
 
 from formation_bench.analysis import stats
-from formation_bench.analysis.cells import number_cell, p_cell
+from formation_bench.analysis.cells import metric_column, p_cell
 from formation_bench.analysis.comparison import prepare
 from formation_bench.mpc.metrics import headline_metrics
 
@@ -72,31 +72,41 @@ def pair_table(results: pd.DataFrame, metrics: tuple[str, ...] | None = None) ->
 
 
 def to_markdown(table: pd.DataFrame) -> str:
-    """The pairs as Markdown, one table per block and metric; empty text when none apply."""
+    """The pairs as Markdown, one table per block: the pairs as rows, the metrics as columns
+    (name and unit in the header), each cell ``variant median vs base median, p (Holm),
+    A12``; empty text when no pair applies."""
     if table.empty:
         return ""
     lines = [
         "## Variants against the configuration they vary",
         "",
-        "Each `<name>-warm` variant against `<name>`, paired by seed: medians, the median of "
-        "the paired differences, Wilcoxon signed-rank (two-sided) Holm-adjusted over the pairs "
-        "of a block and metric, A12 = P(variant > base) (< 0.5: lower values than the base).",
+        "Each `<name>-warm` variant against `<name>`, paired by seed. A cell: the variant's "
+        "median vs the base's, the Wilcoxon signed-rank p (two-sided, Holm-adjusted over the "
+        "pairs of the block and metric; * below 0.05) and A12 = P(variant > base) (< 0.5: lower "
+        "values than the base).",
         "",
     ]
-    for (scenario, trigger, budget, metric), rows in table.groupby([*BLOCK, "metric"], sort=False):
-        lines += [f"### {metric}: scenario {scenario}, trigger {trigger}, {budget}", ""]
-        lines += [
-            "| variant | base | pairs | variant median | base median | median difference "
-            "| p (Holm) | A12 |",
-            "|---|---|---|---|---|---|---|---|",
-        ]
-        for row in rows.itertuples():
-            mark = "*" if row.significant else ""
-            lines.append(
-                f"| {row.variant} | {row.base} | {row.n_pairs} "
-                f"| {number_cell(row.variant_median)} | {number_cell(row.base_median)} "
-                f"| {number_cell(row.median_difference)} | {p_cell(row.p_holm)}{mark} "
-                f"| {row.a12:.2f} |"
-            )
+    for (scenario, trigger, budget), block in table.groupby(BLOCK, sort=False):
+        metrics = list(dict.fromkeys(block["metric"]))
+        columns = [
+            metric_column(m, block.loc[block["metric"] == m, ["variant_median", "base_median"]]
+                          .to_numpy().ravel())
+            for m in metrics
+        ]  # fmt: skip
+        lines += [f"### scenario {scenario}, trigger {trigger}, {budget}", ""]
+        lines.append("| variant | base | pairs | " + " | ".join(c.header for c in columns) + " |")
+        lines.append("|---|---|---:|" + "---:|" * len(columns))
+        for (variant, base), pair in block.groupby(["variant", "base"], sort=False):
+            by_metric = pair.set_index("metric")
+            cells = []
+            for metric, column in zip(metrics, columns, strict=True):
+                row = by_metric.loc[metric]
+                mark = " *" if row["significant"] else ""
+                cells.append(
+                    f"{column.value(row['variant_median'])} vs {column.value(row['base_median'])}"
+                    f", {p_cell(row['p_holm'])}{mark}, A12 {row['a12']:.2f}"
+                )
+            pairs = int(by_metric["n_pairs"].max())
+            lines.append(f"| {variant} | {base} | {pairs} | " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines).rstrip() + "\n"

@@ -14,6 +14,7 @@ import ast
 import dataclasses
 import math
 import re
+import textwrap
 from typing import Any
 
 from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
@@ -23,6 +24,44 @@ from formation_bench.pipeline.spec import deadline_s_of_ms
 
 class UsageError(Exception):
     """A problem with what the user asked for (reported in one line, exit 2)."""
+
+
+HELP_WIDTH = 88
+"""Width the commands' descriptions are wrapped to."""
+INDENT = " " * 6
+"""Indent of what an example does, under its command line."""
+
+
+def first_sentence(description: str) -> str:
+    """A command's one-line help: the first sentence of its description, without the stop."""
+    sentence = re.split(r"(?<=\.)\s", description.strip(), maxsplit=1)[0]
+    return " ".join(sentence.split()).removesuffix(".")
+
+
+def add_command(
+    commands: argparse._SubParsersAction,
+    name: str,
+    description: str,
+    examples: tuple[tuple[str, str], ...] = (),
+) -> argparse.ArgumentParser:
+    """A subcommand declared by its description alone: what it does (its first sentence, also
+    the one-line help in the list of commands), what it writes and where; then ``examples``
+    as (command line, what it does) pairs. Paragraphs are separated by blank lines."""
+    paragraphs = [" ".join(p.split()) for p in description.strip().split("\n\n")]
+    epilog = None
+    if examples:
+        epilog = "examples:\n" + "\n".join(
+            f"  {line}\n"
+            + textwrap.fill(what, HELP_WIDTH, initial_indent=INDENT, subsequent_indent=INDENT)
+            for line, what in examples
+        )
+    return commands.add_parser(
+        name,
+        help=first_sentence(description),
+        description="\n\n".join(textwrap.fill(p, HELP_WIDTH) for p in paragraphs),
+        epilog=epilog,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
 
 
 def parse_value(text: str) -> Any:

@@ -10,8 +10,10 @@ import argparse
 import contextlib
 import dataclasses
 import os
+import shlex
 import signal
 import sys
+import textwrap
 import threading
 import time
 from collections.abc import Iterator
@@ -29,7 +31,9 @@ from formation_bench.analysis.paper import (
     format_table,
 )
 from formation_bench.cli.common import (
+    HELP_WIDTH,
     UsageError,
+    add_command,
     assignment,
     deadline_ms,
     error_message,
@@ -54,7 +58,12 @@ from formation_bench.pipeline.checks import (
 )
 from formation_bench.pipeline.interrupts import is_interrupt
 from formation_bench.pipeline.outputs import write_metrics, write_text, write_trace
-from formation_bench.pipeline.runner import RunOutcome, execute, kernels_cached
+from formation_bench.pipeline.runner import (
+    RunOutcome,
+    execute,
+    kernels_cached,
+    optimizer_kernels_cached,
+)
 from formation_bench.pipeline.spec import RunSpec, flat_fields, solve_budget
 from formation_bench.pipeline.staging import OutputError, staged_folder
 
@@ -73,9 +82,28 @@ examples:
 """
 
 
+START_HINT = (
+    "run 'formation-bench COMMAND --help' for a command's options; "
+    "start with 'formation-bench reproduce'"
+)
+"""The last line of the overview printed when no command is given."""
+
+
 class _Parser(argparse.ArgumentParser):
+    commands: argparse._SubParsersAction | None = None
+    """The subcommands (on the top-level parser only)."""
+
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+    def overview(self) -> str:
+        """The usage line, every command with its one-line help, and where to go next."""
+        assert self.commands is not None
+        helps = {action.dest: action.help for action in self.commands._choices_actions}
+        width = max(map(len, helps))
+        lines = [self.format_usage().rstrip(), "", "commands:"]
+        lines += [f"  {name:<{width}}  {text}" for name, text in helps.items()]
+        return "\n".join([*lines, "", START_HINT]) + "\n"
 
 
 def split_overrides(
@@ -213,11 +241,12 @@ def _print_fields(obj: Any, describe_fields: Any) -> None:
             print(f"  [{info.name}] {info.doc}")
             _print_fields(info.value, describe_fields)
             continue
-        print(f"  {info.name} = {_shown(info.value)}  ({info.type}; {info.allowed})")
+        print(f"  {info.name} = {shown_value(info.value)}  ({info.type}; {info.allowed})")
         print(f"      {info.doc}")
 
 
-def _shown(value: Any) -> str:
+def shown_value(value: Any) -> str:
+    """A setting's value as ``list --fields`` and the generated reference show it."""
     import enum
 
     if isinstance(value, enum.Enum):
@@ -234,7 +263,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         trigger=args.trigger, seed=args.seed, budget=budget, plugins=plugins.loaded_plugins(),
     )  # fmt: skip
     with _staged(args) as out:
-        _compile_notice()
+        _compile_notice(optimizer)
         with _progress_bar(
             spec.optimizer_label, scenario.timing.n_steps, args.progress
         ) as progress:
@@ -295,10 +324,14 @@ def _no_progress(done: int, total: int) -> None:
     pass
 
 
-def _compile_notice() -> None:
-    if not kernels_cached():
+def _compile_notice(optimizer: Optimizer) -> None:
+    """Say so before a run that will compile: the harness's kernels or ``optimizer``'s are not
+    in numba's cache (the first run, or the first after their source changed)."""
+    if not (kernels_cached() and optimizer_kernels_cached(optimizer)):
         print(
-            "compiling numba kernels (first run only, about 15 s)...", file=sys.stderr, flush=True
+            "compiling numba kernels (once: numba caches them; about 15-30 s)...",
+            file=sys.stderr,
+            flush=True,
         )
 
 
@@ -343,7 +376,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     seeds = list(dict.fromkeys(args.seeds))
     settle = get_scenario("paper").evaluation.settle_time_s
     with _staged(args) as staging:
-        _compile_notice()  # after the output checks, so a refused command prints one line
+        # after the output checks, so a refused command prints one line
+        _compile_notice(get_optimizer(DEFAULT_OPTIMIZER))
         runs = {
             seed: reproduce_one(
                 seed,
@@ -356,6 +390,14 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         if len(seeds) > 1:
             table = format_seed_table({seed: comparison_rows(m) for seed, m in runs.items()})
             write_text(staging / "summary.md", table + "\n")
+    files = ["metrics.json", "trace.parquet"]
+    if args.figures:
+        files += ["figures fig3-fig7", "separation_*"]
+    where = f"{out}/seed*, and summary.md to {out}" if len(seeds) > 1 else str(out)
+    print(
+        f"wrote {', '.join(files[:-1])} and {files[-1]} to {where} "
+        f"({time.perf_counter() - start:.1f} s)"
+    )
     print()
     print(
         f"Paper scenario, {DEFAULT_OPTIMIZER}, seed{'s' if len(seeds) > 1 else ''} "
@@ -370,12 +412,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         print(table)
     from formation_bench.analysis.paper_budget import shipped_line  # pandas
 
-    print(shipped_line(DEFAULT_OPTIMIZER))
-    drawn = " and figures fig3-fig7 and separation_*" if args.figures else ""
-    print(
-        f"wrote metrics.json, trace.parquet{drawn} to {out}"
-        f"{'/seed*' if len(seeds) > 1 else ''} ({time.perf_counter() - start:.1f} s in all)"
-    )
+    print()
+    print(shipped_line(DEFAULT_OPTIMIZER))  # the last line, as the docs say
     return 0
 
 
@@ -400,11 +438,14 @@ def add_output_options(command: argparse.ArgumentParser) -> None:
     )
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser() -> _Parser:
     parser = _Parser(
         prog="formation-bench",
-        description="Optimisers inside a distributed MPC of UAV formations: reproduce the "
-        "paper, run closed loops, sweep suites and report their statistics.",
+        description=textwrap.fill(
+            "Optimisers inside a distributed MPC of UAV formations: reproduce the paper, run "
+            "closed loops, sweep suites and report their statistics.",
+            HELP_WIDTH,
+        ),
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -419,10 +460,33 @@ def build_parser() -> argparse.ArgumentParser:
         help="import a module (dotted name) or a .py file that registers optimizers or "
         "scenarios before the command runs (repeatable; sweep workers load it too)",
     )
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    # not required: without a command, main() prints the overview of the commands
+    sub = parser.add_subparsers(
+        dest="command", metavar="COMMAND", title="commands", parser_class=_Parser
+    )
+    parser.commands = sub
 
-    reproduce = sub.add_parser(
-        "reproduce", help="the paper scenario with the modified BSO, without and with trigger"
+    reproduce = add_command(
+        sub,
+        "reproduce",
+        """Reproduce the paper: its scenario with the modified BSO, without and with the
+        trigger. Every figure the paper reports is set beside the measured value.
+
+        Writes metrics.json (one record per run), trace.parquet (every instant of every UAV)
+        and the figures (fig3-fig7 like the paper's, separation_*) to --out, which appears
+        only when complete. With several seeds: one folder OUT/seedN per seed, and
+        OUT/summary.md with every figure over the seeds.
+
+        Prints each run's summary, then the table of the paper's figures, and last the
+        evaluation budget the paper's figures need (read from the shipped paper-budget sweep,
+        not run again).""",
+        examples=(
+            ("formation-bench reproduce", "seed 0, into results/reproduce"),
+            (
+                "formation-bench reproduce --seeds 0 1 2 3 4 --out out/paper",
+                "five seeds, and a table of every figure over them",
+            ),
+        ),
     )
     reproduce.add_argument(
         "--out", default="results/reproduce", help="output folder (default: results/reproduce)"
@@ -440,7 +504,38 @@ def build_parser() -> argparse.ArgumentParser:
     add_output_options(reproduce)
     reproduce.set_defaults(func=cmd_reproduce)
 
-    run = sub.add_parser("run", help="one closed-loop run")
+    run = add_command(
+        sub,
+        "run",
+        """Run one closed loop: one optimiser in the distributed MPC of one scenario. With the
+        event trigger (default) or solving at every instant (--no-trigger).
+
+        Writes metrics.json (the run's record), trace.parquet (every instant of every UAV)
+        and, unless --no-figures, the run's figures to --out, which appears only when
+        complete. Prints a one-line summary of the run. 'formation-bench list' names the
+        optimisers and scenarios; 'formation-bench list --fields NAME' lists the fields --set
+        takes.""",
+        examples=(
+            (
+                "formation-bench run --optimizer pso --no-trigger --seed 3 --out out/pso",
+                "PSO on the paper scenario, solving at every instant",
+            ),
+            (
+                "formation-bench run --optimizer modified-bso --set scenario.reference=s-curve "
+                "--out out/s",
+                "the modified BSO on the S-curve reference path",
+            ),
+            (
+                "formation-bench run --optimizer cma-es --max-evaluations 1200 --out out/cma",
+                "CMA-ES with 1200 cost evaluations per solve",
+            ),
+            (
+                "formation-bench --plugin my_search.py run --optimizer my-random-search "
+                "--out out/mine",
+                "an optimiser registered by a plugin file (--plugin goes before the command)",
+            ),
+        ),
+    )
     run.add_argument("--optimizer", required=True, help="registered optimizer name (see 'list')")
     run.add_argument(
         "--scenario", default="paper", help="registered scenario name (default: paper)"
@@ -483,7 +578,19 @@ def build_parser() -> argparse.ArgumentParser:
     add_output_options(run)
     run.set_defaults(func=cmd_run)
 
-    listing = sub.add_parser("list", help="registered optimizers and scenarios")
+    listing = add_command(
+        sub,
+        "list",
+        """List the registered optimisers, scenarios and reference paths.
+
+        With --fields NAME: the settings of one optimiser or scenario, each with its value,
+        allowed values and meaning, as --set takes them. Prints to stdout and writes
+        nothing.""",
+        examples=(
+            ("formation-bench list", "every optimiser and scenario"),
+            ("formation-bench list --fields pso", "the settings of pso"),
+        ),
+    )
     listing.add_argument(
         "--fields",
         metavar="NAME",
@@ -551,11 +658,53 @@ def _interrupt_once(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
+PLUGIN_OPTION = "--plugin"
+
+
+def misplaced_plugin(argv: list[str], commands: list[str]) -> str | None:
+    """The error for a ``--plugin`` given after the command (which the command's own options
+    would refuse as unknown, or take as a value), with the command line in the right order;
+    None when every ``--plugin`` comes first."""
+    names = set(commands)
+    at = 0
+    while at < len(argv) and argv[at] not in names:
+        at += 2 if argv[at] == PLUGIN_OPTION else 1
+    moved: list[str] = []
+    rest: list[str] = []
+    tail = iter(argv[at + 1 :])
+    for token in tail:
+        if token == "--":  # what follows is not an option
+            rest += [token, *tail]
+        elif token == PLUGIN_OPTION:
+            value = next(tail, None)
+            if value is None or value.startswith("-"):
+                rest += [] if value is None else [value]
+                value = "MODULE_OR_FILE"
+            moved += [token, value]
+        elif token.startswith(PLUGIN_OPTION + "="):
+            moved.append(token)
+        else:
+            rest.append(token)
+    if at >= len(argv) or not moved:
+        return None
+    corrected = shlex.join([*argv[:at], *moved, argv[at], *rest])
+    return f"{PLUGIN_OPTION} goes before the command: formation-bench {corrected}"
+
+
 def main(argv: list[str] | None = None) -> int:
     previous = _take_over_interrupts()
     command = "formation-bench"
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        args = build_parser().parse_args(argv)
+        parser = build_parser()
+        assert parser.commands is not None  # for the type checker: build_parser sets them
+        misplaced = misplaced_plugin(argv, list(parser.commands.choices))
+        if misplaced is not None:
+            raise UsageError(misplaced)  # before argparse, whose own error would come first
+        args = parser.parse_args(argv)
+        if args.command is None:
+            print(parser.overview(), end="", file=sys.stderr)
+            return 2
         command = f"formation-bench {args.command}"
         _check_arguments(args)
         plugins.load_plugins(args.plugin)

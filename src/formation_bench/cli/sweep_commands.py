@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 from formation_bench.cli.common import (
+    add_command,
     configured_optimizer,
     deadline_ms,
     positive_int,
@@ -136,7 +138,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         progress=args.progress,
         allow_suite_change=args.allow_suite_change,
     )
+    if not summary.interrupted and summary.already + summary.stored > 0:
+        # the sweep's log goes to stderr: this stays its last line
+        print(f"write its statistics with: {report_command(out)}", file=sys.stderr)
     return summary.exit_code
+
+
+def report_command(results: Path) -> str:
+    """The command that writes the statistics of a results folder."""
+    return f"formation-bench report {shlex.quote(str(results))}"
 
 
 DEFAULT_BUDGET = "default"
@@ -222,8 +232,7 @@ def cmd_score(args: argparse.Namespace) -> int:
     print(
         f"{len(runs)} score runs ({done} new) of {runs[0].optimizer_label} on library "
         f"{runs[0].library_version}, split {runs[0].split}, in {out}/score "
-        f"({time.perf_counter() - start:.1f} s); formation-bench report {out} writes the "
-        "statistics"
+        f"({time.perf_counter() - start:.1f} s); {report_command(out)} writes the statistics"
     )
     return 0
 
@@ -240,6 +249,13 @@ def cmd_report(args: argparse.Namespace) -> int:
             f"{results} holds no results (no runs/ or score/ folder); run a sweep or score "
             "into it first"
         )
+    if args.page is not None and (Path(args.page).is_dir() or Path(args.page).suffix != ".md"):
+        print(
+            f"formation-bench report: error: --page {args.page}: give a Markdown file (.md), "
+            "not a folder",
+            file=sys.stderr,
+        )
+        return 2
     folder = Path(args.out) if args.out is not None else results / "report"
     written = []
     try:
@@ -265,6 +281,12 @@ def cmd_report(args: argparse.Namespace) -> int:
                     "score.md, score_summary.csv, score_degenerate.csv, score_phases.csv, "
                     "score_paired.csv, score_ert.csv, score_profile.csv"
                 )
+        if args.page is not None:
+            from formation_bench.analysis.results_page import write_results_page
+
+            options = [*(["--baseline", *args.baseline] if args.baseline else []),
+                       *(["--compare", args.compare] if args.compare else [])]  # fmt: skip
+            write_results_page(results, args.page, folder, options=options)
     except (ReportError, OutputError) as err:
         print(f"formation-bench report: error: {err}", file=sys.stderr)
         return 2
@@ -272,6 +294,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         f"wrote {folder}/{', '.join(written)}{' and figures/' if args.figures else ''} "
         f"({time.perf_counter() - start:.1f} s)"
     )
+    if args.page is not None:
+        print(f"wrote the results page {args.page}")
     return 0
 
 
@@ -327,10 +351,28 @@ def _zip_folder(folder: Path, archive: Path) -> None:
 
 def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
     """Add ``sweep``, ``score``, ``report`` and ``export-ioh`` to the subcommands."""
-    sweep = sub.add_parser(
+    sweep = add_command(
+        sub,
         "sweep",
-        help="run a suite of closed-loop runs (resumable) into a results folder",
-        description="Run every run of a suite that is not already stored in --out.",
+        f"""Run a suite of closed-loop runs into a results folder (resumable).
+
+        A suite (shipped: {", ".join(shipped_suites())}; or a .toml file) crosses optimisers,
+        scenarios, trigger settings, budgets and seeds. Every run not yet stored in --out runs
+        on --jobs local worker processes (or the workers of a Dask scheduler) and is stored in
+        OUT/runs as it finishes, with OUT/manifest.json; the same command resumes an
+        interrupted sweep. Prints its progress and a summary to stderr, and last the
+        'formation-bench report' command that writes the statistics.""",
+        examples=(
+            (
+                "formation-bench sweep paper --out results/paper --jobs 2",
+                "the shipped suite 'paper' on two worker processes",
+            ),
+            (
+                "formation-bench sweep my_suite.toml --out results/mine --dry-run",
+                "list the runs still to do, each with the 'run' command that repeats it",
+            ),
+            ("formation-bench report results/paper", "then: the statistics of the sweep"),
+        ),
     )
     sweep.add_argument(
         "suite",
@@ -380,13 +422,25 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
     )
     sweep.set_defaults(func=_guarded("sweep", cmd_sweep))
 
-    score = sub.add_parser(
+    score = add_command(
+        sub,
         "score",
-        help="solve every instance of the library with one optimiser (resumable) into DIR",
-        description="Run an optimiser on one split of the instance library (recorded local "
-        "problems with best-known optima J*) at each budget and seed; 'report DIR' gives the "
-        "leaderboard (median normalised gap (f - J*) / (f_warm - J*), relative gap, success "
-        "rates, ERT, ECDFs, performance profiles, per-phase and paired tables).",
+        """Solve every instance of the instance library with one optimiser (resumable).
+
+        The library holds recorded local problems of the closed loop with best-known optima
+        J*. Each instance of the chosen split is solved at each budget and seed, and stored
+        in OUT/score; the same command resumes. Prints a line per stored run, and last the
+        'formation-bench report OUT' command that writes the leaderboard: median normalised
+        gap (f - J*) / (f_warm - J*), relative gap, success rates, ERT, ECDFs, performance
+        profiles, per-phase and paired tables.""",
+        examples=(
+            (
+                "formation-bench score --optimizer pso --budgets default 1200 --seeds 0 1 "
+                "--out results/score",
+                "pso at its own budget and at 1200 evaluations, seeds 0 and 1",
+            ),
+            ("formation-bench report results/score", "then: the leaderboard"),
+        ),
     )
     score.add_argument("--optimizer", required=True, help="registered optimizer name")
     score.add_argument(
@@ -428,13 +482,32 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
     )
     score.set_defaults(func=_guarded("score", cmd_score))
 
-    report = sub.add_parser(
+    report = add_command(
+        sub,
         "report",
-        help="statistics tables (Markdown, CSV) and figures of a results folder",
-        description="Median, IQR, bootstrap CI; Wilcoxon vs a baseline with Holm; A12; "
-        "Friedman with average ranks; seaborn figures.",
+        """Write the statistics tables and figures of a results folder.
+
+        For the runs of a sweep (DIR/runs): report.md and CSV tables (median, IQR and
+        bootstrap CI; Wilcoxon tests against a baseline with Holm's correction and A12;
+        Friedman test with average ranks and Nemenyi); for score runs (DIR/score): score.md
+        and its tables; with the seaborn figures in figures/. Writes to --out (default
+        DIR/report), which appears only when complete, and prints the headline. --page FILE also
+        writes a dated Markdown results page naming the commands that made the results.""",
+        examples=(
+            ("formation-bench report results/paper", "into results/paper/report"),
+            (
+                "formation-bench report results/paper --compare trigger --baseline off",
+                "the trigger settings compared, against the runs without it",
+            ),
+            (
+                "formation-bench report results/comparison --page docs/results/comparison.md",
+                "and the documentation's dated results page",
+            ),
+        ),
     )
-    report.add_argument("results", metavar="DIR", help="results folder written by 'sweep'")
+    report.add_argument(
+        "results", metavar="DIR", help="results folder written by 'sweep' or 'score'"
+    )
     report.add_argument(
         "--baseline",
         metavar="NAME",
@@ -450,6 +523,13 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
     )
     report.add_argument("--out", help="report folder (default: DIR/report)")
     report.add_argument(
+        "--page",
+        metavar="FILE",
+        help="also write a dated Markdown results page (the commands that made the results and "
+        "this page, date, version, machine, the report's tables), keeping the findings written "
+        "into an existing page between its findings markers",
+    )
+    report.add_argument(
         "--overwrite",
         action="store_true",
         help="replace an existing report folder (as a whole) instead of refusing",
@@ -462,13 +542,18 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
     )
     report.set_defaults(func=_guarded("report", cmd_report))
 
-    export = sub.add_parser(
+    export = add_command(
+        sub,
         "export-ioh",
-        help="score runs of a results folder in the IOHprofiler format (for IOHanalyzer)",
-        description="Write every score run of DIR as IOHprofiler data: one algorithm per "
-        "optimiser and budget, the library as one function whose instances are its problems, "
-        "one run per non-degenerate instance and seed, raw_y the normalised gap "
-        "(f - J*) / (f_warm - J*).",
+        """Export the score runs of a results folder for IOHanalyzer (IOHprofiler format).
+
+        Every score run of DIR becomes IOHprofiler data: one algorithm per optimiser and
+        budget, the library as one function whose instances are its problems, one run per
+        non-degenerate instance and seed, raw_y the normalised gap (f - J*) / (f_warm - J*).
+        Writes to --out (default DIR/ioh), which appears only when complete, and with --zip
+        also OUT.zip, for IOHanalyzer's upload. Prints what it wrote (algorithms and runs) and
+        how many solves of degenerate instances it left out.""",
+        examples=(("formation-bench export-ioh results/score --zip", "into results/score/ioh"),),
     )
     export.add_argument("results", metavar="DIR", help="results folder written by 'score'")
     export.add_argument("--out", help="export folder (default: DIR/ioh)")

@@ -31,7 +31,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -57,6 +57,7 @@ from formation_bench.instances.library import (
 )
 from formation_bench.optimizers import Budget, Optimizer, get_optimizer
 from formation_bench.pipeline.interrupts import interrupts_deferred
+from formation_bench.pipeline.record import Provenance
 from formation_bench.pipeline.spec import (
     Identified,
     budget_deadline_ms,
@@ -280,6 +281,7 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
     optimizer = run.optimizer()
     budget = run.budget_for(optimizer)
     rows = []
+    started = time.perf_counter()
     with threadpool_limits(limits=1):
         for instance in split_instances(library, run.split):
             problem = instance.problem
@@ -337,6 +339,11 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
     for k, name in enumerate(DESCRIPTION_COLUMNS):
         frame.insert(k, name, [description[name]] * len(frame))
     frame["budget_max_evaluations"] = frame["budget_max_evaluations"].astype("Int64")
+    # the same provenance as a closed-loop run's record: the code, the machine and the date
+    # that every timing of the run needs beside it
+    provenance = Provenance.here(run_time_s=time.perf_counter() - started)
+    for name, value in asdict(provenance).items():
+        frame[name] = value
     return frame
 
 

@@ -3,7 +3,7 @@
 A suite names optimisers (with config overrides), scenarios (with overrides),
 trigger settings, seeds and budgets; every combination is one closed-loop run.
 Shipped suites live in ``src/formation_bench/experiments/suites/NAME.toml``; any other TOML file can
-be given by path. The format is documented in ``docs/benchmarks.md``.
+be given by path. The format is documented in ``docs/explanation/benchmarks.md``.
 
 Every error names the file, the key path and the allowed values, e.g.::
 
@@ -54,13 +54,49 @@ from formation_bench.plugins import loaded_plugins
 SUITES_DIR = Path(__file__).parent / "suites"
 """Where the shipped suites live."""
 
-TOP_LEVEL_FIELDS = ("name", "description", "seeds", "triggers", "budgets", "trace")
+TOP_LEVEL_KEYS: dict[str, str] = {
+    "name": "the suite's name (a non-empty string; default: the file's stem)",
+    "description": "one line saying what the suite compares (default: empty)",
+    "seeds": "a count of seeds per configuration (seeds 0 .. count - 1), or a list of distinct "
+    "seeds, integers from 0 to 2**128 - 1; required",
+    "triggers": "true, false or [true, false]: the event trigger on, off or both (default: [true])",
+    "budgets": 'a list of per-solve budgets, each "default" (the optimiser\'s own) or a budget '
+    'table (default: ["default"])',
+    "trace": "store every run's per-instant trace beside its record (default: false)",
+    "optimizers": "one or more [[optimizers]] tables; required",
+    "scenarios": "one or more [[scenarios]] tables (default: the paper scenario alone)",
+}
+"""The keys at the top level of a suite file, with what each holds."""
+OPTIMIZER_KEYS: dict[str, str] = {
+    "name": 'a registered optimiser, or "*" for every registered one; required',
+    "label": "the name the results and the report give this configuration (default: the name "
+    "with its overrides)",
+    "overrides": "a table of the optimiser's settings to change, checked before any run",
+    "optional": "true: skip the entry, with a note, when the name is not registered here "
+    "(an adapter whose library is not installed); default false",
+    "exclude": 'with name = "*": names or shell patterns left out, e.g. ["ng-*", "pycma"]',
+    "budgets": "this optimiser's own list of budgets, in place of the suite's",
+}
+"""The keys of an ``[[optimizers]]`` table."""
+SCENARIO_KEYS: dict[str, str] = {
+    "name": "a registered scenario; required",
+    "label": "the name the results and the report give this configuration (default: the name "
+    "with its overrides)",
+    "overrides": "a table of the scenario's settings to change, checked before any run",
+}
+"""The keys of a ``[[scenarios]]`` table."""
+BUDGET_KEYS: dict[str, str] = {
+    "max_evaluations": "objective evaluations per solve",
+    "max_iterations": "optimiser iterations per solve",
+    "deadline_ms": "wall-clock deadline per solve, in milliseconds (read into the seconds of "
+    "Budget.deadline_s)",
+}
+"""The keys of a budget table; an empty table is the optimiser's own budget."""
+TOP_LEVEL_FIELDS = tuple(k for k in TOP_LEVEL_KEYS if k not in ("optimizers", "scenarios"))
 TABLE_FIELDS = ("optimizers", "scenarios")
-OPTIMIZER_FIELDS = ("name", "label", "overrides", "optional", "exclude", "budgets")
-SCENARIO_FIELDS = ("name", "label", "overrides")
-BUDGET_FIELDS = ("max_evaluations", "max_iterations", "deadline_ms")
-"""Keys of a budget table in a suite file; ``deadline_ms`` is in milliseconds, read into the
-seconds of :attr:`Budget.deadline_s`."""
+OPTIMIZER_FIELDS = tuple(OPTIMIZER_KEYS)
+SCENARIO_FIELDS = tuple(SCENARIO_KEYS)
+BUDGET_FIELDS = tuple(BUDGET_KEYS)
 ALL_OPTIMIZERS = "*"
 
 
@@ -160,17 +196,20 @@ def shipped_suites() -> list[str]:
 
 
 def resolve_suite_path(name_or_path: str) -> Path:
-    """A shipped suite's file, or the given path if it is a file."""
+    """A shipped suite's file, or the given path if it is a file.
+
+    A bare shipped name (``comparison``) is the shipped suite even where the working folder
+    holds something of that name, such as the results folder of an earlier sweep."""
     candidate = Path(name_or_path)
+    shipped = SUITES_DIR / f"{name_or_path}.toml"
+    if name_or_path in shipped_suites() and candidate.name == name_or_path:
+        return shipped
     if candidate.is_dir():
         raise SuiteError(f"suite {name_or_path}: is a folder; give a suite .toml file")
     if candidate.suffix == ".toml" or candidate.is_file():
         if not candidate.is_file():
             raise SuiteError(f"suite file {name_or_path} does not exist")
         return candidate
-    shipped = SUITES_DIR / f"{name_or_path}.toml"
-    if shipped.is_file():
-        return shipped
     raise SuiteError(
         f"unknown suite {name_or_path!r}; shipped: {', '.join(shipped_suites())} "
         "(or give the path of a .toml file)"

@@ -11,7 +11,7 @@
  * keeps a tile's state in vector registers and no candidate is left to a scalar
  * remainder loop; numba's loops over a run-time batch size leave the remainder of 30
  * or 10 to scalar code and reload the state from memory at every step.
- * docs/design.md ("The native cost kernel") has the measurements.
+ * docs/explanation/design.md ("The native cost kernel") has the measurements.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>

@@ -281,13 +281,13 @@ class Metrics:
     tracking_error_max_m: float = metric(
         "largest distance of the formation centre from the reference after the settle time",
         "m",
-        label="tracking error max after settling (m)",
+        label="tracking error max after the settle time (m)",
         headline=2,
     )
     tracking_error_rms_m: float = metric(
         "root mean square of that distance after the settle time",
         "m",
-        label="tracking error RMS after settling (m)",
+        label="tracking error RMS after the settle time (m)",
         headline=3,
     )
     distance_error_max_m: dict[str, float] = metric(
@@ -300,7 +300,7 @@ class Metrics:
         "(every pair on the complete graph, so on a partial graph it may be below a named "
         "pair's distance_error_max_m)",
         "m",
-        label="largest distance error after settling (m)",
+        label="largest distance error after the settle time (m)",
         headline=4,
     )
     solves: tuple[int, ...] = metric(
@@ -328,14 +328,14 @@ class Metrics:
     transient_cost: float = metric(
         "the part of closed_loop_cost before the settle time (the start-up)",
         "cost",
-        label="transient cost, eq. (11) before settling (m² s)",
+        label="transient cost, eq. (11) before the settle time (m² s)",
         log_scale=True,
         headline=5,
     )
     steady_state_cost: float = metric(
         "the part of closed_loop_cost from the settle time on (the steady state)",
         "cost",
-        label="steady-state cost, eq. (11) after settling (m² s)",
+        label="steady-state cost, eq. (11) after the settle time (m² s)",
         log_scale=True,
         headline=1,
     )

@@ -5,7 +5,7 @@ problem, the same calling convention and the same IEEE operations, so its costs 
 numba kernel's to the bit (a test checks this on every scenario family). It is compiled
 at install for the installing machine (``setup.py``); where no C compiler works, the
 package installs without it and the numba kernel serves, with the same results, more
-slowly (docs/design.md, "The native cost kernel", has the figures).
+slowly (docs/explanation/design.md, "The native cost kernel", has the figures).
 
 The environment variable :data:`KERNEL_VARIABLE` chooses: ``auto`` (the default: C when
 built, else numba), ``c`` (C, or an error saying it was not built) or ``numba``.

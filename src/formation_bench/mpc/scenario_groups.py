@@ -187,7 +187,7 @@ class TimingSettings(SettingGroup):
         doc="Control blocks per horizon: the decision vector holds 2 * n_blocks numbers",
     )  # fmt: skip
     """Each control is held over ``horizon_steps / n_blocks`` periods. The default 5 (d = 10)
-    was chosen by measurement: see docs/design.md."""
+    was chosen by measurement: see docs/explanation/design.md."""
     rk4_substeps: int = setting(
         1, low=1, high=1000, doc="RK4 sub-steps per control period in prediction and plant"
     )
@@ -268,7 +268,7 @@ class CostWeights(SettingGroup):
     w_trj: float = setting(
         3.0, low=0.0, doc="Weight of the formation-centre tracking term of eq. (14)"
     )
-    """The default 3 (with w_dst = 1) was chosen by measurement: see docs/design.md."""
+    """The default 3 (with w_dst = 1) was chosen by measurement: see docs/explanation/design.md."""
 
     def check_together(self) -> None:
         if self.w_dst == 0 and self.w_trj == 0:
@@ -336,7 +336,8 @@ class CommunicationSettings(SettingGroup):
         doc="Communication graph: which UAVs each UAV listens to (complete = the paper)",
     )
     """Each UAV's cost and trigger use only its neighbours' plans; off the complete graph the
-    formation centre is estimated from the UAV and its neighbours (docs/scenarios.md)."""
+    formation centre is estimated from the UAV and its neighbours
+    (docs/explanation/scenarios.md)."""
     graph_neighbours: int = setting(
         2, low=1, doc="k of the k-nearest graph: neighbours each UAV listens to"
     )

@@ -1,7 +1,7 @@
 """The event trigger of eqs. (15)-(19), one pure function per condition.
 
 UAV i re-solves at t_c when ANY condition holds (eq. 19); otherwise it keeps
-applying its last plan. With the corrections described in docs/paper.md: eq. (16)
+applying its last plan. With the corrections described in docs/explanation/paper.md: eq. (16)
 divides by N_uav, and eq. (17) uses u_max = [a_max, omega_max] (checked on
 both sides of each control's range, since the bounds are symmetric in the
 paper but need not be here).

@@ -328,7 +328,8 @@ def bso_draws(uniforms: np.ndarray, normals: np.ndarray, n_clusters: int, width:
 
 
 # inline: a thin layer. Every compiled call boundary re-optimises the whole callee tree below
-# it when the caller is built, so thin layers cost cold-start seconds; see docs/design.md
+# it when the caller is built, so thin layers cost cold-start seconds; see
+# docs/explanation/kernels.md
 @njit(cache=True, inline="always")
 def move_ideas(auxiliary: np.ndarray, factor: float, draws: BSODraws, s: tuple) -> np.ndarray:
     """The ideas: the ``auxiliary`` solutions (modified in place and returned) moved by the

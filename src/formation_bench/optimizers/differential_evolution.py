@@ -308,7 +308,8 @@ register(
 )
 WARM_START_SHARE = 0.9
 """``warm_start_share`` of ``de-immediate-warm``: chosen with the spread on the instance
-library's validation split (docs/optimizers.md, "Initial population around the warm start")."""
+library's validation split (docs/explanation/optimizers.md, "Initial population around the
+warm start")."""
 WARM_START_SPREAD = 0.02
 """``warm_start_spread`` of ``de-immediate-warm``, chosen with the share."""
 

@@ -5,7 +5,7 @@ are ``m`` distinct members drawn at random); the best member of each cluster
 is its centre; with probability ``p_r`` a random centre is replaced by the
 best of ``n_r`` chaotic points (eqs. 6-7); every one of the ``N`` slots gets
 a new idea from a chaotic weighting of all centres (eqs. 8-9, eq. 8 corrected as
-described in docs/paper.md) moved by the logsig step of eq. (10), which
+described in docs/explanation/paper.md) moved by the logsig step of eq. (10), which
 replaces the slot's member only when strictly better.
 
 Switching off ``all_centre_weighting`` uses Shi's (2011) idea selection
@@ -129,7 +129,8 @@ class ModifiedBSO(WarmStartInit, ModifiedBSOConfig, AskTellOptimizer):
 
 WARM_START_SHARE = 0.9
 """``warm_start_share`` of ``modified-bso-warm``: chosen with the spread on the instance
-library's validation split (docs/optimizers.md, "Initial population around the warm start")."""
+library's validation split (docs/explanation/optimizers.md, "Initial population around the
+warm start")."""
 WARM_START_SPREAD = 0.005
 """``warm_start_spread`` of ``modified-bso-warm``, chosen with the share."""
 

@@ -31,7 +31,7 @@ by size, a greedy step that compares the new idea with itself and so always
 accepts it, and 0.5 (A + B) instead of r A + (1 - r) B (all in mealpy's
 ``OriginalBSO``), one ``xi`` per iteration instead of one per idea and no
 ``xi`` at all for ideas from a random member (mealpy), or one normal value
-added to every dimension (other implementations). ``docs/optimizers.md``
+added to every dimension (other implementations). ``docs/explanation/optimizers.md``
 compares this implementation with mealpy's on BBOB functions.
 
 The paper says nothing about ideas that leave the box; they are clipped
@@ -105,7 +105,8 @@ class OriginalBSO(WarmStartInit, ShiConfig, AskTellOptimizer):
 
 WARM_START_SHARE = 0.9
 """``warm_start_share`` of ``original-bso-warm``: chosen with the spread on the instance
-library's validation split (docs/optimizers.md, "Initial population around the warm start")."""
+library's validation split (docs/explanation/optimizers.md, "Initial population around the
+warm start")."""
 WARM_START_SPREAD = 0.005
 """``warm_start_spread`` of ``original-bso-warm``, chosen with the share."""
 

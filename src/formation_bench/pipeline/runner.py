@@ -27,6 +27,8 @@ if TYPE_CHECKING:
     import pandas as pd
     import pyarrow as pa
 
+    from formation_bench.optimizers import Optimizer
+
 
 @dataclass(frozen=True)
 class RunOutcome:
@@ -45,19 +47,45 @@ class RunOutcome:
 
 
 def kernels_cached() -> bool:
-    """Whether numba's on-disk cache holds the harness's and the modified BSO's kernels.
+    """Whether numba's on-disk cache holds the harness's kernels (the model, the cost and the
+    trigger's conditions, which every run uses), fresh for their source.
 
-    A cold cache means a first run that compiles for several seconds; the
-    command line says so before it starts.
+    A cold cache means a first run that compiles for several seconds; the command line says so
+    before it starts (:func:`optimizer_kernels_cached` for the optimiser's own kernels).
     """
-    from formation_bench.mpc import cost
-    from formation_bench.optimizers import modified_bso_kernels
+    from formation_bench.mpc import cost, model, trigger
 
-    for module in (cost, modified_bso_kernels):
-        path = Path(module.__file__)
-        if not any((path.parent / "__pycache__").glob(f"{path.stem}.*.nbi")):
-            return False
-    return True
+    harness = (
+        model.rollout,
+        cost.packed_batch_cost,
+        trigger.distance_condition,
+        trigger.tracking_condition,
+        trigger.control_condition,
+    )
+    return all(kernel_cached(kernel) for kernel in harness)
+
+
+def optimizer_kernels_cached(optimizer: Optimizer) -> bool:
+    """Whether numba's cache holds the compiled solve loop of ``optimizer`` (the ``iterate``
+    of an ask/tell optimiser's :attr:`~formation_bench.optimizers.ask_tell.AskTellOptimizer.
+    kernels`, which compiles its ask and tell with it); True for an optimiser without one."""
+    iterate = getattr(getattr(optimizer, "kernels", None), "iterate", None)
+    return iterate is None or kernel_cached(iterate)
+
+
+def kernel_cached(kernel: object) -> bool:
+    """Whether numba's on-disk cache (``NUMBA_CACHE_DIR`` or beside the source) holds a
+    compilation of the ``@njit(cache=True)`` function ``kernel`` made from its current source;
+    True for anything numba does not cache, which has nothing to find."""
+    cache_file = getattr(getattr(kernel, "_cache", None), "_cache_file", None)
+    if cache_file is None:
+        return True
+    try:
+        # the index numba itself reads: empty when missing, from another numba version or
+        # from an older version of the source
+        return bool(cache_file._load_index())
+    except Exception:  # numba's private layout changed: whether the index exists at all
+        return Path(cache_file._index_path).exists()
 
 
 def warm_up_kernels() -> None:

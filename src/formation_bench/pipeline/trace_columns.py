@@ -6,7 +6,7 @@ it fills (:class:`Span`) and where its values come from (the run's labels or its
 :class:`~formation_bench.mpc.loop.Trace`). The table is written from :data:`TRACE_COLUMNS`
 (:func:`formation_bench.pipeline.outputs.trace_table`), checked against it when read
 (:func:`check_schema`), and documented from it (:func:`columns_table`, shown verbatim in
-``docs/benchmarks.md``).
+``docs/explanation/benchmarks.md``).
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ the controls it applied, so ``fun`` is ``problem(x)`` to the bit and the result 
 worse than the warm start.
 
 Choices the sources leave open, made here (the defaults measured on the instance library's
-test split, 588 problems; docs/gradient-baselines.md):
+test split, 588 problems; docs/explanation/gradient-baselines.md):
 
 - the cost Hessian is the Gauss-Newton one (:class:`~formation_bench.mpc.solvers.
   ilqr_derivatives.CostHessian`): positive semidefinite, so ``mu`` stays 0 on most solves;

@@ -136,7 +136,7 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
 
     shooting: Shooting = setting(Shooting.SINGLE, doc="Transcription: single or multiple shooting")
     """Transcription: ``single`` or ``multiple`` shooting (default chosen by measurement,
-    see docs/gradient-baselines.md)."""
+    see docs/explanation/gradient-baselines.md)."""
     max_iter: int = setting(
         100, low=0, doc="IPOPT's max_iter when the caller gives no budget; the default budget"
     )

@@ -17,7 +17,7 @@ in the deviation ``du = u - u0``:
     dense ``P = G' H G`` (all of its upper triangle kept as entries) and
     ``q = G' g``; ``A`` is the identity. Same solution, 10 variables instead of
     90: on the paper scenario OSQP needs a third of the iterations and the
-    95th percentile of the solve time is 5-16 times lower (docs/gradient-baselines.md).
+    95th percentile of the solve time is 5-16 times lower (docs/explanation/gradient-baselines.md).
 
 The collision and obstacle penalties ``w * max(0, r - d)^2`` are not convex in the positions,
 and a QP cannot hold them. They enter by their Gauss-Newton model: with the residual
@@ -348,7 +348,7 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
         QPForm.CONDENSED,
         doc="QP transcription: condensed (controls only) or sparse (states as variables too)",
     )
-    """The default was chosen by measurement (docs/gradient-baselines.md)."""
+    """The default was chosen by measurement (docs/explanation/gradient-baselines.md)."""
     sqp_iterations: int = setting(
         1, low=1,
         doc="Linearise-solve-line-search rounds per instant when the caller gives no budget",
@@ -362,7 +362,7 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
     )
     max_iter: int = setting(20_000, low=1, doc="OSQP's iteration limit per QP")
     """OSQP's default 4000 is too few for some start-up instants of the paper scenario (see
-    docs/gradient-baselines.md)."""
+    docs/explanation/gradient-baselines.md)."""
     polishing: bool | None = setting(
         None, kind=bool, optional=True,
         doc="OSQP's solution polishing; None = on for the sparse form, off for the condensed one",

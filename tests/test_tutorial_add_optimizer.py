@@ -1,4 +1,4 @@
-"""The README's 'Adding an optimiser' example works as printed."""
+"""The "Add an optimiser" tutorial's example works as printed."""
 
 import re
 import shlex
@@ -13,17 +13,17 @@ from formation_bench.mpc.loop import simulate
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import OPTIMIZERS, Bounds, Budget, get_optimizer
 
-README = Path(__file__).parents[1] / "README.md"
+TUTORIAL = Path(__file__).parents[1] / "docs" / "tutorials" / "add-optimizer.md"
 
 
-def readme_example() -> str:
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
+def tutorial_example() -> str:
+    blocks = re.findall(r"```python\n(.*?)```", TUTORIAL.read_text(), flags=re.S)
     return next(b for b in blocks if "register(" in b)
 
 
-def test_readme_optimizer_example_runs_in_the_closed_loop():
+def test_tutorial_optimizer_example_runs_in_the_closed_loop():
     try:
-        exec(compile(readme_example(), "README.md", "exec"), {})
+        exec(compile(tutorial_example(), "add-optimizer.md", "exec"), {})
         optimizer = get_optimizer("my-random-search")
         result = optimizer.minimize(
             lambda x: np.sum(x**2, axis=1),
@@ -41,11 +41,11 @@ def test_readme_optimizer_example_runs_in_the_closed_loop():
         OPTIMIZERS.pop("my-random-search", None)
 
 
-def test_readme_plugin_settings_are_listed_and_its_refusal_is_printed_as_shown(tmp_path):
-    (tmp_path / "my_search.py").write_text(readme_example())
+def test_tutorial_plugin_settings_are_listed_and_its_refusal_is_printed_as_shown(tmp_path):
+    (tmp_path / "my_search.py").write_text(tutorial_example())
     shown = re.search(r"```console\n\$ (formation-bench --plugin my_search\.py .*)\n(.*)\n```",
-                      README.read_text())  # fmt: skip
-    assert shown is not None, "the README shows a refused plugin setting"
+                      TUTORIAL.read_text())  # fmt: skip
+    assert shown is not None, "the tutorial shows a refused plugin setting"
     command, printed = shlex.split(shown[1]), shown[2]
     done = subprocess.run(
         [sys.executable, "-m", "formation_bench.cli.main", *command[1:]],

@@ -1,0 +1,313 @@
+"""A dated results page (Markdown) for a results folder: what ``formation-bench report DIR
+--page FILE`` writes, for the documentation's ``results/`` pages.
+
+The page opens with its title and one paragraph naming the command that made the results
+(the sweep, read from the folder's manifest; the score runs, rebuilt from their rows), the
+report command that writes the page, the date of the runs, the formation-bench version and
+the machine (CPU model). Then come the report's tables: for a suite folder the headline
+metrics of every block (:func:`~formation_bench.analysis.report.to_markdown`) and the
+sections the report wrote (swarm, robustness, obstacles, paper budget, variant pairs); for a
+score folder the leaderboard as ``score.md`` ranks it. Every table is preceded by
+``<!-- produced by: COMMAND -->``, a table with times also by the machine and the date
+(the documentation's convention for tables that must not go stale silently).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import shlex
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+SECTION_FILES = ("paper_budget.md", "swarm.md", "robustness.md", "obstacles.md", "variant_pairs.md")
+"""Report files whose tables a suite's page carries after the headline, in this order."""
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where a folder's results come from, as the page's first paragraph says it."""
+
+    kind: str
+    """``suite`` or ``score``."""
+    name: str
+    commands: tuple[str, ...]
+    """The commands that made the results (one per score optimiser)."""
+    dates: tuple[str, ...]
+    """``YYYY-MM-DD`` of the runs, first and last (one when they agree)."""
+    version: str
+    machine: str
+
+    @property
+    def date(self) -> str:
+        """The runs' last date (the date a timing table carries)."""
+        return self.dates[-1] if self.dates else "unknown"
+
+
+def _day(stamp: object) -> str | None:
+    try:
+        return dt.datetime.fromisoformat(str(stamp)).date().isoformat()
+    except ValueError:
+        return None
+
+
+def _span(days: list[str | None]) -> tuple[str, ...]:
+    known = sorted({d for d in days if d})
+    return tuple(dict.fromkeys([known[0], known[-1]])) if known else ()
+
+
+def _shown_command(command: str) -> str:
+    """A recorded command line with the program named ``formation-bench``, not by its path."""
+    words = shlex.split(command)
+    if words and Path(words[0]).name == "formation-bench":
+        words[0] = "formation-bench"
+    return shlex.join(words)
+
+
+def suite_provenance(results_dir: Path, results: pd.DataFrame) -> Provenance:
+    """A suite folder's provenance: its manifest's sessions (commands, dates, machine,
+    versions), else what its run records hold."""
+    try:
+        manifest = json.loads((results_dir / "manifest.json").read_text())
+    except (OSError, ValueError):
+        manifest = {}
+    sessions = manifest.get("sessions") or []
+    commands = tuple(
+        dict.fromkeys(_shown_command(s["command"]) for s in sessions if "command" in s)
+    )
+    days = [_day(s.get(k)) for s in sessions for k in ("started", "finished")]
+    if not any(days) and "finished_at" in results:
+        days = [_day(v) for v in results["finished_at"].dropna()]
+    version = (manifest.get("versions") or {}).get("formation-bench")
+    if version is None and "version" in results:
+        version = _distinct(results, "version")
+    if version is not None and _distinct(results, "commit"):
+        version = f"{version} (commit {_distinct(results, 'commit', width=10)})"
+    machine_info = manifest.get("machine") or {}
+    cpu = machine_info.get("cpu_model")
+    if cpu is None and "cpu_model" in results:
+        cpu = ", ".join(sorted(results["cpu_model"].dropna().astype(str).unique()))
+    machine = str(cpu or "not recorded")
+    if machine_info.get("cpu_count"):
+        machine += f", {machine_info['cpu_count']} CPUs"
+    name = (manifest.get("suite") or {}).get("name") or ", ".join(
+        sorted(results["suite"].astype(str).unique()) if "suite" in results else []
+    )
+    return Provenance("suite", name, commands, _span(days), str(version or "not recorded"), machine)
+
+
+def score_commands(scores: pd.DataFrame, results_dir: Path) -> tuple[str, ...]:
+    """The ``formation-bench score`` command of every optimiser in ``scores`` (its overrides,
+    budgets, seeds, library, split and deadline as its rows record them)."""
+    commands = []
+    for optimizer, rows in scores.groupby("optimizer_name", sort=True):
+        words = ["formation-bench", "score", "--optimizer", str(optimizer)]
+        overrides = json.loads(str(rows["optimizer_overrides"].iloc[0]) or "{}")
+        for field, value in overrides.items():
+            words += [
+                "--set",
+                f"{field}={json.dumps(value) if not isinstance(value, str) else value}",
+            ]
+        budgets = [
+            "default" if pd.isna(b) else str(int(b))
+            for b in dict.fromkeys(rows["budget_max_evaluations"])
+        ]
+        words += ["--budgets", *budgets, "--seeds", *map(str, sorted(rows["seed"].unique()))]
+        deadline = rows["deadline_ms"].dropna()
+        if len(deadline):
+            words += ["--deadline-ms", f"{float(deadline.iloc[0]):g}"]
+        words += [
+            "--library",
+            str(rows["library"].iloc[0]),
+            "--split",
+            str(rows["run_split"].iloc[0]),
+        ]
+        words += ["--out", str(results_dir)]
+        commands.append(shlex.join(words))
+    return tuple(dict.fromkeys(commands))
+
+
+def _distinct(rows: pd.DataFrame, column: str, width: int | None = None) -> str:
+    """The distinct values of ``column`` in ``rows``, joined ("" when it has none)."""
+    if column not in rows:
+        return ""
+    values = rows[column].dropna().astype(str).str[:width].unique()
+    return ", ".join(sorted(values))
+
+
+def score_provenance(results_dir: Path, scores: pd.DataFrame) -> Provenance:
+    """A score folder's provenance: its commands rebuilt from the rows, and the dates,
+    version, commit and machine its rows record (the files' dates, for rows stored before
+    score runs recorded them)."""
+    library = ", ".join(sorted(scores["library"].astype(str).unique()))
+    if "finished_at" in scores and scores["finished_at"].notna().all():
+        days = [_day(v) for v in scores["finished_at"].unique()]
+    else:
+        files = list((results_dir / "score").glob("*.parquet"))
+        days = [dt.date.fromtimestamp(f.stat().st_mtime).isoformat() for f in files]
+    version = _distinct(scores, "version") or "not recorded by these score runs"
+    if _distinct(scores, "commit"):
+        version += f" (commit {_distinct(scores, 'commit', width=10)})"
+    return Provenance(
+        "score",
+        f"leaderboard on library {library}",
+        score_commands(scores, results_dir),
+        _span(days),
+        version,
+        _distinct(scores, "cpu_model") or "not recorded by these score runs",
+    )
+
+
+def mark_tables(markdown: str, command: str, provenance: Provenance) -> str:
+    """``markdown`` with ``<!-- produced by: COMMAND; machine: ...; date: ... -->`` on the line
+    above every table, and its headings one level lower (the page's title is the only level-1
+    heading). Every table names the runs' machine and date: most carry times, and the others
+    come from the same runs."""
+    lines = markdown.splitlines()
+    out: list[str] = []
+    for k, line in enumerate(lines):
+        starts_table = line.startswith("|") and (k == 0 or not lines[k - 1].startswith("|"))
+        if starts_table:
+            comment = (
+                f"<!-- produced by: {command}; machine: {provenance.machine}; "
+                f"date: {provenance.date}"
+            )
+            out += [comment + " -->", ""] if out and out[-1] == "" else ["", comment + " -->", ""]
+        out.append("#" + line if line.startswith("#") and not line.startswith("#!") else line)
+    return "\n".join(out).rstrip() + "\n"
+
+
+def report_command(results_dir: Path | str, page: Path | str, options: list[str] = ()) -> str:
+    """``formation-bench report DIR [options] --page FILE``."""
+    return shlex.join(
+        ["formation-bench", "report", str(results_dir), *options, "--page", str(page)]
+    )
+
+
+FINDINGS_START = "<!-- findings: kept when the page is regenerated -->"
+"""Opens the hand-written part of a page, which a regeneration keeps (up to
+:data:`FINDINGS_END`) and puts back under the page's first paragraph."""
+FINDINGS_END = "<!-- end of findings -->"
+"""Closes the hand-written part of a page."""
+
+
+def kept_findings(page: Path) -> str:
+    """The hand-written findings of an existing ``page``, markers included ("" if none)."""
+    if not page.is_file():
+        return ""
+    text = page.read_text()
+    start = text.find(FINDINGS_START)
+    end = text.find(FINDINGS_END, start)
+    if start < 0 or end < 0:
+        return ""
+    return text[start : end + len(FINDINGS_END)]
+
+
+def page_text(
+    provenance: Provenance,
+    body: str,
+    command: str,
+    *,
+    today: dt.date | None = None,
+    findings: str = "",
+) -> str:
+    """The page: title, the paragraph naming the commands, date, version and machine, the
+    hand-written ``findings`` (if any), then ``body`` with its tables marked
+    (:func:`mark_tables`)."""
+    today = today or dt.date.today()
+    dates = " to ".join(provenance.dates) or "not recorded"
+    several = len(provenance.commands) > 1
+    made_by = (
+        "the commands below"
+        if several
+        else "".join(f"`{c}`" for c in provenance.commands) or "a command not recorded"
+    )
+    kind = "Score runs" if provenance.kind == "score" else f"Suite `{provenance.name}`"
+    title = provenance.name if provenance.kind == "score" else f"suite {provenance.name}"
+    intro = (
+        f"{kind}, made by {made_by}; this page is written by `{command}` (on "
+        f"{today.isoformat()}). Runs dated {dates}; formation-bench {provenance.version}; "
+        f"machine: {provenance.machine}."
+    )
+    if several:
+        intro += "\n\n```\n" + "\n".join(provenance.commands) + "\n```"
+    kept = f"{findings}\n\n" if findings else ""
+    return f"# Results: {title} ({provenance.date})\n\n{intro}\n\n{kept}" + mark_tables(
+        body, command, provenance
+    )
+
+
+def write_results_page(
+    results_dir: Path | str,
+    page: Path | str,
+    report_folder: Path | str,
+    *,
+    options: list[str] = (),
+    today: dt.date | None = None,
+) -> Path:
+    """Write the results page of ``results_dir`` to ``page`` from the report that
+    ``formation-bench report`` has written into ``report_folder``; ``options`` are the
+    report options to name in the page's command (``["--baseline", "pso"]``). The findings
+    written by hand into an existing page, between :data:`FINDINGS_START` and
+    :data:`FINDINGS_END`, are kept."""
+    results_dir, page, folder = Path(results_dir), Path(page), Path(report_folder)
+    command = report_command(results_dir, page, list(options))
+    parts = []
+    provenances = []
+    if (results_dir / "runs").is_dir():
+        from formation_bench.analysis.comparison import analyse
+        from formation_bench.analysis.report import to_markdown
+        from formation_bench.experiments.store import load_results
+        from formation_bench.mpc.metrics import headline_metrics
+
+        results = load_results(results_dir)
+        baseline, compare = _option(options, "--baseline", many=True), _option(options, "--compare")
+        headline = list(headline_metrics())
+        report = analyse(results, baseline=baseline, compare=compare, metrics=headline)
+        parts.append(to_markdown(report, results, metrics=headline, title="Headline metrics"))
+        parts.append("Every metric of every block: `report.md` of the report folder.\n")
+        parts += [(folder / f).read_text() for f in SECTION_FILES if (folder / f).is_file()]
+        provenances.append(suite_provenance(results_dir, results))
+    if (results_dir / "score").is_dir():
+        from formation_bench.experiments.score import load_scores
+
+        parts.append((folder / "score.md").read_text())
+        provenances.append(score_provenance(results_dir, load_scores(results_dir)))
+    if not provenances:
+        raise FileNotFoundError(f"{results_dir} holds no runs/ or score/ folder")
+    provenance = provenances[0] if len(provenances) == 1 else _merged(provenances)
+    text = page_text(
+        provenance, "\n".join(parts), command, today=today, findings=kept_findings(page)
+    )
+    page.parent.mkdir(parents=True, exist_ok=True)
+    # written beside the page and renamed over it, so a page is never left half-written
+    partial = page.with_name(f".{page.name}.partial")
+    partial.write_text(text)
+    partial.replace(page)
+    return page
+
+
+def _option(options: list[str], name: str, *, many: bool = False) -> str | list[str] | None:
+    options = list(options)
+    if name not in options:
+        return None
+    values = []
+    for word in options[options.index(name) + 1 :]:
+        if word.startswith("--"):
+            break
+        values.append(word)
+    return values if many else (values[0] if values else None)
+
+
+def _merged(provenances: list[Provenance]) -> Provenance:
+    suite = provenances[0]
+    return Provenance(
+        suite.kind,
+        " and ".join(p.name for p in provenances),
+        tuple(c for p in provenances for c in p.commands),
+        _span([d for p in provenances for d in p.dates]),
+        suite.version,
+        suite.machine,
+    )
