@@ -314,3 +314,18 @@ def test_report_refuses_a_page_that_is_not_a_markdown_file_before_any_work(tmp_p
         "folder"
     )
     assert not (results / "report").exists()
+
+
+def test_a_text_valued_choice_is_listed_and_refused_as_it_is_written(tmp_path, capsys):
+    assert main(["list", "--fields", "paper"]) == 0
+    listing = capsys.readouterr().out
+    assert "graph = complete  (CommunicationGraph; one of complete, ring, k-nearest, range)" in (
+        listing
+    )
+    argv = ["run", "--optimizer", "pso", "--set", "scenario.graph=star", "--out", str(tmp_path)]
+    assert main(argv) == 2
+    assert (
+        capsys.readouterr()
+        .err.strip()
+        .endswith("expected one of complete, ring, k-nearest, range, got 'star'")
+    )

@@ -125,7 +125,7 @@ def test_no_live_worker_for_the_timeout_stops_with_one_line_and_resumes(tmp_path
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
     assert err[-1] == (
-        f"formation-bench sweep: error: --out: no live Dask worker at "
+        f"formation-bench sweep: error: --scheduler: no live Dask worker at "
         f"{cluster.scheduler_address} for 1 s (--worker-timeout); stopped: 0 of 12 runs in "
         f"{out}; start workers and run the same command again"
     )

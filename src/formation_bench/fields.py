@@ -39,6 +39,12 @@ METADATA_KEY = "formation_bench.setting"
 # --- the single-value checks (also used directly, e.g. by run-time arguments) ------------------
 
 
+def member_text(member: enum.Enum) -> str:
+    """How an enum member is written in a value, a listing and an error: its text value
+    (``k-nearest``), or its name in lower case for a numbered member (``rand_1_bin``)."""
+    return member.value if isinstance(member.value, str) else member.name.lower()
+
+
 def coerce_enum(owner: str, name: str, enum_type: type[EnumT], value: object) -> EnumT:
     """``value`` as a member of ``enum_type``.
 
@@ -56,7 +62,7 @@ def coerce_enum(owner: str, name: str, enum_type: type[EnumT], value: object) ->
             return enum_type(value)
         except (ValueError, TypeError):
             pass
-    allowed = ", ".join(m.name.lower() for m in enum_type)
+    allowed = ", ".join(member_text(m) for m in enum_type)
     raise ValueError(f"{owner}.{name} must be one of {allowed}, got {value!r}")
 
 
@@ -319,7 +325,7 @@ def allowed_text(spec: Setting) -> str:
         text = "True or False"
     elif spec.kind == "enum":
         assert spec.enum_type is not None
-        text = "one of " + ", ".join(m.name.lower() for m in spec.enum_type)
+        text = "one of " + ", ".join(member_text(m) for m in spec.enum_type)
     elif spec.kind == "int":
         low = _limit_text(spec.low, "")
         text = (

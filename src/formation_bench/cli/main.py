@@ -45,6 +45,7 @@ from formation_bench.cli.common import (
     set_error,
 )
 from formation_bench.cli.sweep_commands import add_sweep_commands
+from formation_bench.fields import member_text
 from formation_bench.mpc.loop import ProgressCallback
 from formation_bench.mpc.reference import REFERENCE_PATHS
 from formation_bench.mpc.scenario import SCENARIOS, Scenario, get_scenario
@@ -250,7 +251,7 @@ def shown_value(value: Any) -> str:
     import enum
 
     if isinstance(value, enum.Enum):
-        return value.name.lower() if not isinstance(value.value, str) else value.value
+        return member_text(value)
     return repr(value)
 
 

@@ -32,7 +32,14 @@ class SweepStopped(Exception):
     ``advice`` ends the one-line message after the count of stored runs.
     """
 
-    def __init__(self, reason: str, advice: str = "run the same command again to finish") -> None:
+    def __init__(
+        self,
+        reason: str,
+        advice: str = "run the same command again to finish",
+        option: str = "--out",
+    ) -> None:
         super().__init__(reason)
         self.reason = reason
         self.advice = advice
+        self.option = option
+        """The command-line option the stop concerns, which the one-line message names."""

@@ -256,6 +256,7 @@ def run_on_dask(
                     f"no live Dask worker at {client.scheduler.address} for "
                     f"{worker_timeout_s:g} s (--worker-timeout)",
                     "start workers and run the same command again",
+                    option="--scheduler",
                 )
     finally:
         if remaining:

@@ -146,7 +146,7 @@ def run_sweep(
         raise SweepError(f"--out: {err}") from None
     except SweepStopped as stop:
         raise SweepError(
-            f"--out: {stop.reason}; stopped: {_stored(store, keys)} of {len(keys)} runs in "
+            f"{stop.option}: {stop.reason}; stopped: {_stored(store, keys)} of {len(keys)} runs in "
             f"{store.root}; {stop.advice}"
         ) from None
     except OSError as err:
