@@ -104,6 +104,26 @@ def _chunks(metrics: list[str], size: int) -> list[list[str]]:
     return [metrics[k : k + size] for k in range(0, len(metrics), size)]
 
 
+def _grid(head: list[str], rows: list[list[str]]) -> list[str]:
+    """A table whose first column names the row and the others hold numbers (right-aligned)."""
+    rule = "|---|" + "---:|" * (len(head) - 1)
+    return [_row(head), rule, *(_row(cells) for cells in rows)]
+
+
+def _summary_cell(column: MetricColumn, summary: pd.DataFrame, level: str, runs: int) -> str:
+    """``median [CI]`` of ``level``, with ``(n k)`` when fewer of its ``runs`` have a value."""
+    if level not in summary.index or not summary.loc[level, "n"]:
+        return "–"
+    row = summary.loc[level]
+    text = (
+        f"{column.value(row['median'])} "
+        f"[{column.value(row['ci_low'])}, {column.value(row['ci_high'])}]"
+    )
+    if row["n"] < runs:  # some runs have no value (never settled)
+        text += f" (n {int(row['n'])})"
+    return text
+
+
 def _values_table(
     tables: BlockTables,
     block_key: dict[str, str],
@@ -113,30 +133,21 @@ def _values_table(
 ) -> list[str]:
     factor = tables.report.factor
     runs = block.groupby(factor, sort=False).size()
-    lines = [
-        _row([factor, "runs", *(c.header for c in columns)]),
-        "|---|---:|" + "---:|" * len(columns),
-    ]
     summaries = {
         c.column: tables.select("summary", block_key, c.column).set_index(factor) for c in columns
     }
-    for level in levels:
-        cells = [level, str(int(runs.get(level, 0)))]
-        for column in columns:
-            summary = summaries[column.column]
-            if level not in summary.index or not summary.loc[level, "n"]:
-                cells.append("–")
-                continue
-            row = summary.loc[level]
-            text = (
-                f"{column.value(row['median'])} "
-                f"[{column.value(row['ci_low'])}, {column.value(row['ci_high'])}]"
-            )
-            if row["n"] < runs.get(level, 0):  # some runs have no value (never settled)
-                text += f" (n {int(row['n'])})"
-            cells.append(text)
-        lines.append(_row(cells))
-    return lines
+    rows = [
+        [
+            level,
+            str(int(runs.get(level, 0))),
+            *(
+                _summary_cell(c, summaries[c.column], level, int(runs.get(level, 0)))
+                for c in columns
+            ),
+        ]
+        for level in levels
+    ]
+    return _grid([factor, "runs", *(c.header for c in columns)], rows)
 
 
 def _ranks_table(
@@ -147,12 +158,12 @@ def _ranks_table(
     with_legend: bool,
 ) -> list[str]:
     factor = tables.report.factor
-    ranks = {
-        c.column: tables.select("ranks", block_key, c.column).set_index(factor)["average_rank"]
-        if not tables.select("ranks", block_key, c.column).empty
-        else pd.Series(dtype=float)
-        for c in columns
-    }
+    ranks = {}
+    for c in columns:
+        selected = tables.select("ranks", block_key, c.column)
+        ranks[c.column] = (
+            pd.Series(dtype=float) if selected.empty else selected.set_index(factor)["average_rank"]
+        )
     if all(r.empty for r in ranks.values()):
         return []
     higher = [c.name for c in columns if (i := metric_of(c.column)) and i.better is Better.HIGHER]
@@ -161,27 +172,24 @@ def _ranks_table(
         f"Friedman average rank over the seeds every {factor} ran, 1 = the lowest value{note}; "
         "last row: Friedman's p-value (seeds)."
     )
-    lines = [
-        *([legend, ""] if with_legend else []),
-        _row([factor, *(c.header for c in columns)]),
-        "|---|" + "---:|" * len(columns),
-    ]
-    for level in levels:
-        cells = [level]
-        for column in columns:
-            rank = ranks[column.column].get(level, math.nan)
-            cells.append("–" if pd.isna(rank) else f"{rank:.2f}")
-        lines.append(_row(cells))
-    cells = ["Friedman p"]
-    for column in columns:
+
+    def rank_cell(level: str, column: MetricColumn) -> str:
+        rank = ranks[column.column].get(level, math.nan)
+        return "–" if pd.isna(rank) else f"{rank:.2f}"
+
+    def friedman_cell(column: MetricColumn) -> str:
         friedman = tables.select("friedman", block_key, column.column)
         if friedman.empty:
-            cells.append("–")
-        else:
-            first = friedman.iloc[0]
-            cells.append(f"{p_cell(first['p'])} ({int(first['n_seeds'])})")
-    lines.append(_row(cells))
-    return lines
+            return "–"
+        first = friedman.iloc[0]
+        return f"{p_cell(first['p'])} ({int(first['n_seeds'])})"
+
+    rows = [[level, *(rank_cell(level, c) for c in columns)] for level in levels]
+    rows.append(["Friedman p", *(friedman_cell(c) for c in columns)])
+    return [
+        *([legend, ""] if with_legend else []),
+        *_grid([factor, *(c.header for c in columns)], rows),
+    ]
 
 
 def _tests_table(
@@ -206,25 +214,20 @@ def _tests_table(
         f"over the levels compared with {base} on that metric; * p < {SIGNIFICANCE:g}) and "
         f"A12 = P({factor} > {base}) (< 0.5: lower values than {base})."
     )
-    lines = [
-        *([legend, ""] if with_legend else [f"Against {base}: p (Holm), A12.", ""]),
-        _row([factor, *(c.header for c in columns)]),
-        "|---|" + "---:|" * len(columns),
-    ]
-    for level in levels:
-        cells = [level]
-        for column in columns:
-            table = tests[column.column]
-            if level == base:
-                cells.append("baseline")
-            elif table.empty or level not in table.index:
-                cells.append("–")
-            else:
-                test = table.loc[level]
-                mark = " *" if test["significant"] else ""
-                cells.append(f"{p_cell(test['p_holm'])}{mark}, A12 {test['a12']:.2f}")
-        lines.append(_row(cells))
-    return lines
+
+    def test_cell(level: str, column: MetricColumn) -> str:
+        table = tests[column.column]
+        if level == base:
+            return "baseline"
+        if table.empty or level not in table.index:
+            return "–"
+        test = table.loc[level]
+        mark = " *" if test["significant"] else ""
+        return f"{p_cell(test['p_holm'])}{mark}, A12 {test['a12']:.2f}"
+
+    rows = [[level, *(test_cell(level, c) for c in columns)] for level in levels]
+    head = [legend, ""] if with_legend else [f"Against {base}: p (Holm), A12.", ""]
+    return [*head, *_grid([factor, *(c.header for c in columns)], rows)]
 
 
 def block_lines(

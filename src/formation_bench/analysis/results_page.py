@@ -19,8 +19,12 @@ import json
 import shlex
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pandas as pd
+
+if TYPE_CHECKING:
+    from formation_bench.analysis.comparison import Report
 
 SECTION_FILES = ("paper_budget.md", "swarm.md", "robustness.md", "obstacles.md", "variant_pairs.md")
 """Report files whose tables a suite's page carries after the headline, in this order."""
@@ -244,16 +248,21 @@ def write_results_page(
     page: Path | str,
     report_folder: Path | str,
     *,
-    options: list[str] = (),
+    report: Report | None = None,
+    baseline: list[str] | None = None,
+    compare: str | None = None,
     today: dt.date | None = None,
 ) -> Path:
     """Write the results page of ``results_dir`` to ``page`` from the report that
-    ``formation-bench report`` has written into ``report_folder``; ``options`` are the
-    report options to name in the page's command (``["--baseline", "pso"]``). The findings
+    ``formation-bench report`` has written into ``report_folder``: its sections, and the
+    headline tables of ``report`` (the analysis the command made; analysed afresh when not
+    given, with ``baseline`` and ``compare``, which the page's command names too). The findings
     written by hand into an existing page, between :data:`FINDINGS_START` and
     :data:`FINDINGS_END`, are kept."""
     results_dir, page, folder = Path(results_dir), Path(page), Path(report_folder)
-    command = report_command(results_dir, page, list(options))
+    options = [*(["--baseline", *baseline] if baseline else []),
+               *(["--compare", compare] if compare else [])]  # fmt: skip
+    command = report_command(results_dir, page, options)
     parts = []
     provenances = []
     if (results_dir / "runs").is_dir():
@@ -263,9 +272,9 @@ def write_results_page(
         from formation_bench.mpc.metrics import headline_metrics
 
         results = load_results(results_dir)
-        baseline, compare = _option(options, "--baseline", many=True), _option(options, "--compare")
         headline = list(headline_metrics())
-        report = analyse(results, baseline=baseline, compare=compare, metrics=headline)
+        if report is None:
+            report = analyse(results, baseline=baseline, compare=compare, metrics=headline)
         parts.append(to_markdown(report, results, metrics=headline, title="Headline metrics"))
         parts.append("Every metric of every block: `report.md` of the report folder.\n")
         parts += [(folder / f).read_text() for f in SECTION_FILES if (folder / f).is_file()]
@@ -287,18 +296,6 @@ def write_results_page(
     partial.write_text(text)
     partial.replace(page)
     return page
-
-
-def _option(options: list[str], name: str, *, many: bool = False) -> str | list[str] | None:
-    options = list(options)
-    if name not in options:
-        return None
-    values = []
-    for word in options[options.index(name) + 1 :]:
-        if word.startswith("--"):
-            break
-        values.append(word)
-    return values if many else (values[0] if values else None)
 
 
 def _merged(provenances: list[Provenance]) -> Provenance:

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -625,7 +625,6 @@ class Section:
     """One suite section: its long table, Markdown and figure-ready runs."""
 
     name: str
-    title: str
     metrics: tuple[str, ...]
     runs: pd.DataFrame
     """The runs with :func:`scenario_columns` and the factors as the report prints them."""
@@ -638,7 +637,7 @@ class Section:
     that vary over the block's runs as columns, the others on one line."""
     block_columns: dict[str, tuple[str, ...]]
     """Per block, the metrics its tables have a column for."""
-    ranking: pd.DataFrame
+    ranking: pd.DataFrame = field(default_factory=pd.DataFrame)
     """:func:`overall_ranking` of the swarm section; empty in the others (they rank per
     block)."""
     ranking_text: str = ""
@@ -753,7 +752,6 @@ def swarm_section(runs: pd.DataFrame) -> Section:
     ranking_text = "\n".join(_ranking_lines(ranking, frame, SWARM_METRICS, varying))
     return Section(
         name="swarm",
-        title="Swarm",
         metrics=SWARM_METRICS,
         runs=frame,
         table=table,
@@ -805,14 +803,12 @@ def robustness_section(runs: pd.DataFrame) -> Section:
     )
     return Section(
         name="robustness",
-        title="Robustness",
         metrics=ROBUSTNESS_METRICS,
         runs=frame,
         table=table,
         intro=intro,
         blocks=texts,
         block_columns=columns,
-        ranking=pd.DataFrame(),
     )
 
 
@@ -855,14 +851,12 @@ def obstacles_section(runs: pd.DataFrame) -> Section:
     )
     return Section(
         name="obstacles",
-        title="Obstacles",
         metrics=OBSTACLE_METRICS,
         runs=frame,
         table=table,
         intro=intro,
         blocks=texts,
         block_columns=columns,
-        ranking=pd.DataFrame(),
     )
 
 

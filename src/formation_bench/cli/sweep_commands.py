@@ -260,8 +260,9 @@ def cmd_report(args: argparse.Namespace) -> int:
     written = []
     try:
         with staged_folder(folder, overwrite=args.overwrite) as staging:
+            report = None
             if has_runs:
-                _, headline, _ = make_report(
+                report, headline, _ = make_report(
                     results,
                     staging,
                     baseline=args.baseline,
@@ -284,9 +285,10 @@ def cmd_report(args: argparse.Namespace) -> int:
         if args.page is not None:
             from formation_bench.analysis.results_page import write_results_page
 
-            options = [*(["--baseline", *args.baseline] if args.baseline else []),
-                       *(["--compare", args.compare] if args.compare else [])]  # fmt: skip
-            write_results_page(results, args.page, folder, options=options)
+            write_results_page(
+                results, args.page, folder,
+                report=report, baseline=args.baseline, compare=args.compare,
+            )  # fmt: skip
     except (ReportError, OutputError) as err:
         print(f"formation-bench report: error: {err}", file=sys.stderr)
         return 2
