@@ -105,3 +105,20 @@ def test_startup_script_measures_overhead_and_compile(tmp_path, monkeypatch):
     assert "formation_bench.mpc.cost.packed_batch_cost" in kernels
     assert cold["compile_cpu_s"] == pytest.approx(sum(kernels.values()))
     assert cold["wall_s"]["median"] > warm["wall_s"]["median"]
+
+
+def test_run_split_parts_add_up_to_the_run(tmp_path, capsys):
+    from perf import run_split
+
+    out = tmp_path / "split.json"
+    assert run_split.main(["--optimizers", "ltv-osqp", "--seeds", "1", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "| ltv-osqp |" in printed and "all x 30 seeds, s" in printed
+    row = json.loads(out.read_text())["runs"]["ltv-osqp"]
+    assert 0 < row["solves"] < row["run"]
+    assert row["loop bookkeeping"] > 0 and row["outside the loop"] > 0
+    assert row["solves"] + row["loop bookkeeping"] + row["outside the loop"] == pytest.approx(
+        row["run"], rel=1e-9
+    )
+    with pytest.raises(SystemExit, match="not in the comparison suite"):
+        run_split.main(["--optimizers", "no-such-optimizer"])

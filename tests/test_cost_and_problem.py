@@ -244,3 +244,36 @@ def test_batch_cost_kernel_directly_against_single_rows():
     one_by_one = np.concatenate([problem(decisions[i : i + 1]) for i in range(7)])
     np.testing.assert_array_equal(together, one_by_one)
     assert batch_cost is not None
+
+
+@pytest.mark.parametrize("rule", list(EstimateExtension))
+def test_compiled_estimate_is_the_numpy_formula_to_the_bit(rule):
+    rng = np.random.default_rng(21)
+    for start, step, n_points in [(4, 4, 21), (4, 10, 42), (0, 30, 5), (7, 7, 1)]:
+        controls = rng.uniform([-7, -0.25], [7, 0.25], size=(20, 2))
+        state = np.array([*rng.uniform(-50, 50, 2), rng.uniform(-3, 3), rng.uniform(5, 20)])
+        from formation_bench.mpc.model import coast, rollout
+
+        plan = Plan(start, controls, rollout(state, controls, 0.2, 3))
+        index = step - start + np.arange(n_points)
+        expected = plan.states[np.minimum(index, 20), :2].copy()
+        beyond = index > 20
+        if rule == EstimateExtension.COAST and beyond.any():
+            expected[beyond] = coast(plan.states[20], (index[beyond] - 20) * 0.2)
+        np.testing.assert_array_equal(estimate_positions(plan, step, n_points, 0.2, rule), expected)
+
+
+def test_block_means_sum_in_the_order_of_add_at():
+    from formation_bench.mpc.cost import block_map
+    from formation_bench.mpc.problem import block_means
+
+    rng = np.random.default_rng(5)
+    for horizon, n_blocks in [(20, 5), (20, 20), (17, 4), (20, 1)]:
+        blocks = block_map(horizon, n_blocks)
+        controls = rng.uniform(-7, 7, size=(horizon, 2)) * 10.0 ** rng.integers(-8, 8, (horizon, 1))
+        sums = np.zeros((n_blocks, 2))
+        np.add.at(sums, blocks, controls)
+        counts = np.bincount(blocks, minlength=n_blocks)[:, None]
+        np.testing.assert_array_equal(
+            block_means(controls, blocks, n_blocks), (sums / counts).reshape(-1)
+        )

@@ -123,3 +123,14 @@ def test_plant_steps_reproduce_the_plan_to_the_bit(substeps):
     for k in range(len(controls)):
         plant.append(step_plant(plant[-1][None], controls[k : k + 1], 0.2, substeps)[0])
     np.testing.assert_array_equal(np.array(plant), plan)
+
+
+def test_compiled_plant_step_is_each_uav_s_rollout():
+    rng = np.random.default_rng(11)
+    states = np.column_stack(
+        (rng.uniform(-50, 50, (7, 2)), rng.uniform(-3, 3, 7), rng.uniform(5, 20, 7))
+    )
+    controls = rng.uniform([-7, -0.25], [7, 0.25], size=(7, 2))
+    plant = step_plant(states, controls, 0.2, 4)
+    for i in range(7):
+        np.testing.assert_array_equal(plant[i], rollout(states[i], controls[i : i + 1], 0.2, 4)[1])

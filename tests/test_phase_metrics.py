@@ -133,3 +133,17 @@ def test_a_control_at_a_bound_is_found_within_the_tolerance():
     inside = -0.25 + 0.5 * AT_BOUND_TOLERANCE * 0.5
     assert at_bound(np.array([0.0, inside]), lower, upper)
     assert not at_bound(np.array([0.0, -0.25 + 2 * AT_BOUND_TOLERANCE * 0.5]), lower, upper)
+
+
+def test_compiled_at_bound_agrees_with_the_numpy_form():
+    rng = np.random.default_rng(2)
+    lower, upper = np.tile([-7.0, -0.25], 5), np.tile([7.0, 0.25], 5)
+    margin = AT_BOUND_TOLERANCE * (upper - lower)
+    for _ in range(500):
+        decision = rng.uniform(lower, upper)
+        # put some components within a few margins of a bound, on either side of it
+        near = rng.random(10) < 0.1
+        side = np.where(rng.random(10) < 0.5, lower + margin, upper - margin)
+        decision[near] = side[near] + rng.uniform(-2, 2, near.sum()) * margin[near]
+        expected = bool(np.any((decision <= lower + margin) | (decision >= upper - margin)))
+        assert at_bound(decision, lower, upper) is expected

@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from formation_bench.cli.main import main
-from formation_bench.experiments import score
+from formation_bench.experiments import score, seal
 from formation_bench.experiments.errors import IntegrityError, ManifestError
 from formation_bench.experiments.manifest import read_manifest, write_manifest
 from formation_bench.experiments.seal import decode, read_sealed, unseal
@@ -145,9 +145,10 @@ def test_every_footer_byte_is_covered_by_the_seal(stored):
             unseal(bytes(garbled))
 
 
-def test_data_pages_are_written_with_checksums_that_reading_verifies(stored):
+@pytest.mark.parametrize("folder", ["traces", "runs"])
+def test_data_pages_are_written_with_checksums_that_reading_verifies(stored, folder):
     _, out, *_ = stored
-    path = next((out / "traces").glob("*.parquet"))
+    path = next((out / folder).glob("*.parquet"))
     data = path.read_bytes()
     chunk = pq.ParquetFile(path).metadata.row_group(0).column(0)
     end = (chunk.dictionary_page_offset or chunk.data_page_offset) + chunk.total_compressed_size
@@ -242,6 +243,25 @@ def test_files_from_before_seals_are_used_with_a_notice_and_redone(stored, tmp_p
     summary = sweep(path, out)
     assert summary.redo == {"unverified": RUNS} and summary.stored == RUNS
     assert len(load_results(out)) == RUNS and capsys.readouterr().err == ""
+    pd.testing.assert_frame_equal(results_of(out), results, check_exact=True)
+
+
+def test_run_files_sealed_by_the_earlier_writer_are_kept_and_read_the_same(
+    stored, tmp_path, monkeypatch
+):
+    """Run files were once written as traces still are (zstd, dictionaries, statistics)."""
+    path, _, results, *_ = stored
+    out = copy_of(stored, tmp_path)
+    store = ResultStore(out)
+    monkeypatch.setattr(seal, "_WRITER_OPTIONS", {})
+    for key in store.keys():
+        row = pq.read_table(store.run_path(key)).to_pylist()[0]
+        store.write_run(key, row, load_traces(out, [key]).drop(columns="run_key"))
+    monkeypatch.undo()
+    chunk = pq.ParquetFile(store.run_path(key)).metadata.row_group(0).column(0)
+    assert chunk.compression == "ZSTD" and chunk.statistics is not None
+    summary = sweep(path, out)
+    assert summary.already == RUNS and summary.stored == 0 and not summary.redo
     pd.testing.assert_frame_equal(results_of(out), results, check_exact=True)
 
 

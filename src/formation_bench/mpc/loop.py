@@ -20,10 +20,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numba as nb
 import numpy as np
 
 from formation_bench.mpc.disturbance import Disturbances
-from formation_bench.mpc.network import Network, listening
+from formation_bench.mpc.network import Network, fixed_listening, heard_lists, listening
 from formation_bench.mpc.problem import (
     LocalProblem,
     Plan,
@@ -106,10 +107,15 @@ AT_BOUND_TOLERANCE = 1e-6
 interior-point solver stops a little inside an active bound)."""
 
 
+@nb.njit(cache=True)
 def at_bound(decision: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> bool:
-    """Whether any component of ``decision`` lies at its lower or upper bound."""
-    margin = AT_BOUND_TOLERANCE * (upper - lower)
-    return bool(np.any((decision <= lower + margin) | (decision >= upper - margin)))
+    """Whether any component of ``decision`` lies at its lower or upper bound (compiled:
+    asked after every solve)."""
+    for k in range(decision.shape[0]):
+        margin = AT_BOUND_TOLERANCE * (upper[k] - lower[k])
+        if decision[k] <= lower[k] + margin or decision[k] >= upper[k] - margin:
+            return True
+    return False
 
 
 def simulate(
@@ -237,6 +243,8 @@ class ClosedLoop:
         self.times = np.arange(n_steps + self.horizon + 1) * self.period
         self.reference, self.heading = scenario.reference_at(self.times)
         self.offsets = scenario.desired_offsets(self.heading)  # (n_steps + H + 1, N, 2)
+        # by UAV, so that a UAV's desired offsets from its neighbours are one subtraction
+        self.offsets_by_uav = np.ascontiguousarray(self.offsets.transpose(1, 0, 2))
         self.lookahead = scenario.trigger_lookahead
         self.bounds = [scenario.control_bounds_of(i) for i in range(n_uav)]
         # off the complete graph the centre is estimated from the UAV and its neighbours alone
@@ -247,6 +255,11 @@ class ClosedLoop:
             coasting_plan(self.log.states[0, i], 0, scenario) for i in range(n_uav)
         ]
         self.network = Network(scenario, self.plans, self.streams.network)
+        # the complete graph and the ring do not depend on where the UAVs are
+        self.fixed_listens = fixed_listening(scenario)
+        if self.fixed_listens is not None:
+            self.fixed_listens.setflags(write=False)
+        self.fixed_heard = None if self.fixed_listens is None else heard_lists(self.fixed_listens)
         self.disturbances = Disturbances(scenario, self.streams.wind, self.streams.noise)
         self.tracks: dict[int, tuple[Plan, np.ndarray]] = {}
         """By plan id: the plan and its estimated positions from its start over
@@ -259,12 +272,16 @@ class ClosedLoop:
         log, network = self.log, self.network
         network.advance_links()
         log.plans_late[c] = network.deliver(c)
-        listens = listening(self.scenario, log.states[c, :, :2])
+        if self.fixed_listens is None:
+            listens = listening(self.scenario, log.states[c, :, :2])
+            heard = heard_lists(listens)
+        else:
+            listens, heard = self.fixed_listens, self.fixed_heard
         log.neighbours[c] = listens
         measured = self.disturbances.measure(log.states[c])
         published = list(self.plans)
         for i in range(self.n_uav):
-            known = self.neighbourhood(c, i, listens)
+            known = self.neighbourhood(c, i, heard[i])
             decision = self.trigger_decision(c, i, known)
             log.reasons[c, i] = decision.as_tuple()
             if self.trigger_on and not decision.fire:
@@ -275,23 +292,19 @@ class ClosedLoop:
         self.forget_old_tracks()
         self.apply_controls(c)
 
-    def neighbourhood(self, c: int, i: int, listens: np.ndarray) -> Neighbourhood:
-        """UAV ``i``'s view at instant ``c`` (estimates from :meth:`estimate`)."""
-        horizon, offsets, held = self.horizon, self.offsets, self.network.held[i]
-        heard = [int(j) for j in np.flatnonzero(listens[i])]
+    def neighbourhood(self, c: int, i: int, heard: list[int]) -> Neighbourhood:
+        """UAV ``i``'s view at instant ``c`` of the neighbours it hears (estimates from
+        :meth:`estimate`)."""
+        window = slice(c, c + self.horizon + 1)
         own = self.estimate(self.plans[i], c)
-        others = (
-            np.stack([self.estimate(held[j], c) for j in heard])
-            if heard
-            else np.zeros((0, horizon + 1, 2))
-        )  # (J, H + 1, 2)
-        desired_relative = np.transpose(
-            offsets[c : c + horizon + 1, i][:, None] - offsets[c : c + horizon + 1, heard],
-            (1, 0, 2),
-        )  # (J, H + 1, 2)
-        group_offsets = (
-            offsets[c : c + horizon + 1, [i, *heard]].sum(axis=1) if self.group_centre else None
-        )
+        if heard:
+            held = self.network.held[i]
+            others = np.array([self.estimate(held[j], c) for j in heard])  # (J, H + 1, 2)
+            by_uav = self.offsets_by_uav
+            desired_relative = by_uav[i, window] - by_uav[heard, window]  # (J, H + 1, 2)
+        else:
+            others, desired_relative = np.zeros((2, 0, self.horizon + 1, 2))
+        group_offsets = self.offsets[window, [i, *heard]].sum(axis=1) if self.group_centre else None
         return Neighbourhood(heard, own, others, desired_relative, group_offsets)
 
     def estimate(self, plan: Plan, c: int) -> np.ndarray:
@@ -330,31 +343,26 @@ class ClosedLoop:
         has a plan of its own yet (logged as expiry)."""
         if c == 0:
             return TriggerDecision(False, False, False, True)
-        trigger, horizon, lookahead = self.scenario.trigger, self.horizon, self.lookahead
+        trigger, horizon, checked = self.scenario.trigger, self.horizon, self.lookahead + 1
         lower, upper = self.bounds[i]
-        window = slice(0, lookahead + 1)
-        own_plan = self.plans[i]
+        own, others = known.own[:checked], known.others[:, :checked]
         group_offsets = known.group_offsets
+        age = c - self.plans[i].start_step
         return TriggerDecision(
             distance=distance_condition(
-                known.own[window],
-                known.others[:, window],
-                known.desired_relative[:, window],
-                trigger.eps_p,
+                own, others, known.desired_relative[:, :checked], trigger.eps_p
             ),
             tracking=tracking_condition(
-                known.own[window],
-                known.others[:, window],
-                self.reference[c : c + lookahead + 1],
+                own,
+                others,
+                self.reference[c : c + checked],
                 centre_group_size(self.n_uav, len(known.heard), self.group_centre),
                 trigger.eps_o,
-                None if group_offsets is None else group_offsets[window],
+                None if group_offsets is None else group_offsets[:checked],
             ),
-            control=c - own_plan.start_step < horizon
-            and control_condition(
-                own_plan.controls[c - own_plan.start_step], lower, upper, trigger.eta
-            ),
-            expiry=expiry_condition(c - own_plan.start_step, horizon),
+            control=age < horizon
+            and control_condition(self.plans[i].controls[age], lower, upper, trigger.eta),
+            expiry=expiry_condition(age, horizon),
         )
 
     def solve(self, c: int, i: int, known: Neighbourhood, measured: np.ndarray) -> Plan:

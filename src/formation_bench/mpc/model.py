@@ -226,6 +226,7 @@ def rollout_batch(
     return out
 
 
+@nb.njit(cache=True)
 def step_plant(
     states: np.ndarray, controls: np.ndarray, period: float, substeps: int
 ) -> np.ndarray:

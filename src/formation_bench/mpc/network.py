@@ -16,7 +16,7 @@ not a plan is sent, so the losses and delays of a seed are the same for every op
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -47,9 +47,23 @@ def listening(scenario: Scenario, positions: np.ndarray) -> np.ndarray:
     return adjacency
 
 
-@dataclass(frozen=True)
-class Packet:
-    """A plan on its way from ``sender`` to ``receiver``."""
+def fixed_listening(scenario: Scenario) -> np.ndarray | None:
+    """The :func:`listening` matrix of a graph that does not depend on the UAVs' positions
+    (complete, ring); None for one that does (range, k-nearest)."""
+    if scenario.communication.graph in (CommunicationGraph.COMPLETE, CommunicationGraph.RING):
+        return listening(scenario, scenario.initial_state_array()[:, :2])
+    return None
+
+
+def heard_lists(listens: np.ndarray) -> list[list[int]]:
+    """Row ``i``: the UAVs that UAV ``i`` listens to, in order, from a :func:`listening`
+    matrix."""
+    return [np.flatnonzero(row).tolist() for row in listens]
+
+
+class Packet(NamedTuple):
+    """A plan on its way from ``sender`` to ``receiver`` (a tuple: one is made per receiver of
+    every plan)."""
 
     arrival_step: int
     sender: int
@@ -112,7 +126,8 @@ class Network:
         returns the bool mask of receivers whose copy was lost."""
         lost = listeners & self.lost_state[:, sender]
         nominal = step + 1 + self.scenario.communication.delay_steps
-        for receiver in np.flatnonzero(listeners & ~lost):
-            arrival = nominal + int(self.extra_delay[receiver, sender])
-            self.in_flight.append(Packet(arrival, sender, int(receiver), plan, arrival > step + 1))
+        delays = self.extra_delay[:, sender].tolist()
+        for receiver in np.flatnonzero(listeners & ~lost).tolist():
+            arrival = nominal + delays[receiver]
+            self.in_flight.append(Packet(arrival, sender, receiver, plan, arrival > step + 1))
         return lost

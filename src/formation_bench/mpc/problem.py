@@ -12,8 +12,10 @@ batch objective over the (blocked) control sequence with box bounds.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from formation_bench.mpc.cost import (
@@ -23,7 +25,7 @@ from formation_bench.mpc.cost import (
     packed_batch_cost,
     reference_cost,
 )
-from formation_bench.mpc.model import coast, rollout
+from formation_bench.mpc.model import rollout
 from formation_bench.mpc.native_cost import cost_function
 from formation_bench.mpc.scenario import EstimateExtension, Scenario
 from formation_bench.optimizers.base import Bounds
@@ -65,16 +67,38 @@ def estimate_positions(
 
     Inside the plan they are its predicted positions; past its end they follow
     ``extension``: COAST flies the terminal state on at constant speed and
-    heading, HOLD keeps the terminal position.
+    heading (:func:`~formation_bench.mpc.model.coast`), HOLD keeps the terminal position.
     """
-    horizon = plan.horizon_steps
-    index = step - plan.start_step + np.arange(n_points)
-    if index[0] < 0:
+    first = step - plan.start_step
+    if first < 0:
         raise ValueError(f"plan starts at instant {plan.start_step}, after {step}")
-    positions = plan.states[np.minimum(index, horizon), :2].copy()
-    beyond = index > horizon
-    if extension == EstimateExtension.COAST and np.any(beyond):
-        positions[beyond] = coast(plan.states[horizon], (index[beyond] - horizon) * period)
+    return track_positions(
+        plan.states, first, n_points, period, extension == EstimateExtension.COAST
+    )
+
+
+@nb.njit(cache=True)
+def track_positions(
+    states: np.ndarray, first: int, n_points: int, period: float, coasting: bool
+) -> np.ndarray:
+    """``(n_points, 2)``: the positions of predicted ``states`` ``(H + 1, 4)`` from row
+    ``first`` on, past the last row coasting (``coasting``) or held there. Compiled: every new
+    plan is estimated, where numpy's calls on a few rows cost more than the arithmetic; it
+    computes :func:`~formation_bench.mpc.model.coast`'s formula in its order."""
+    horizon = states.shape[0] - 1
+    x, y, theta, v = states[horizon, 0], states[horizon, 1], states[horizon, 2], states[horizon, 3]
+    velocity_x, velocity_y = v * math.cos(theta), v * math.sin(theta)
+    positions = np.empty((n_points, 2))
+    for k in range(n_points):
+        index = first + k
+        if index > horizon and coasting:
+            duration = (index - horizon) * period
+            positions[k, 0] = x + velocity_x * duration
+            positions[k, 1] = y + velocity_y * duration
+        else:
+            row = min(index, horizon)
+            positions[k, 0] = states[row, 0]
+            positions[k, 1] = states[row, 1]
     return positions
 
 
@@ -115,6 +139,24 @@ def centre_group_size(n_uav: int, n_neighbours: int, group_centre: bool) -> int:
     """M, the number of UAVs a UAV estimates the formation centre from: every UAV (eq. 14),
     or with ``group_centre`` the UAV and its ``n_neighbours`` neighbours alone."""
     return n_neighbours + 1 if group_centre else n_uav
+
+
+@nb.njit(cache=True)
+def block_means(controls: np.ndarray, block_of_step: np.ndarray, n_blocks: int) -> np.ndarray:
+    """``(2 * n_blocks,)``: the mean of the per-period ``controls`` ``(H, 2)`` over each block,
+    as a decision vector. Summed period by period in order, as ``np.add.at`` sums."""
+    sums = np.zeros((n_blocks, 2))
+    counts = np.zeros(n_blocks, dtype=np.int64)
+    for k in range(block_of_step.shape[0]):
+        block = block_of_step[k]
+        sums[block, 0] += controls[k, 0]
+        sums[block, 1] += controls[k, 1]
+        counts[block] += 1
+    means = np.empty(2 * n_blocks)
+    for block in range(n_blocks):
+        means[2 * block] = sums[block, 0] / counts[block]
+        means[2 * block + 1] = sums[block, 1] / counts[block]
+    return means
 
 
 class LocalProblem:
@@ -224,11 +266,9 @@ class LocalProblem:
 
     def decision_from_controls(self, controls: np.ndarray) -> np.ndarray:
         """Block averages of per-period controls ``(H, 2)``: the warm-start decision."""
-        n_blocks = self.scenario.timing.n_blocks
-        sums = np.zeros((n_blocks, 2))
-        np.add.at(sums, self.block_of_step, controls)
-        counts = np.bincount(self.block_of_step, minlength=n_blocks)[:, None]
-        return self.bounds.clip((sums / counts).reshape(-1))
+        return self.bounds.clip(
+            block_means(controls, self.block_of_step, self.scenario.timing.n_blocks)
+        )
 
     def plan(self, decision: np.ndarray, start_step: int) -> Plan:
         """The plan a decision vector stands for, starting at ``start_step``."""

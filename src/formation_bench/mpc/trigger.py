@@ -10,7 +10,7 @@ paper but need not be here).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -127,9 +127,9 @@ def expiry_condition(steps_since_solve: int, horizon_steps: int) -> bool:
     return steps_since_solve >= horizon_steps
 
 
-@dataclass(frozen=True)
-class TriggerDecision:
-    """Which conditions held for one UAV at one instant."""
+class TriggerDecision(NamedTuple):
+    """Which conditions held for one UAV at one instant (a tuple: one is made per UAV and
+    instant)."""
 
     distance: bool
     tracking: bool
@@ -142,4 +142,4 @@ class TriggerDecision:
         return self.distance or self.tracking or self.control or self.expiry
 
     def as_tuple(self) -> tuple[bool, bool, bool, bool]:
-        return (self.distance, self.tracking, self.control, self.expiry)
+        return tuple(self)

@@ -5,8 +5,9 @@ An optimiser of this kind (:class:`AskTellOptimizer`) supplies
 * its **state**, a :class:`typing.NamedTuple` of arrays and numbers (numba compiles a
   NamedTuple into a struct, and a kernel returns the next one; it may write into arrays that
   the block owns, as CMA-ES does after copying its run once per block);
-* its **params**, the tuple of settings its kernels read, built once per solve from its
-  declared fields (:meth:`AskTellOptimizer.params`);
+* its **params**, the tuple of settings its kernels read, built from its declared fields
+  and a solve's box (:meth:`AskTellOptimizer.params`) and kept for the next solves over the
+  same box (:meth:`AskTellOptimizer.solve_params`): the kernels never write into them;
 * two compiled **kernels** (``@njit(cache=True)``):
 
   .. code-block:: python
@@ -174,6 +175,16 @@ class Kernels(NamedTuple):
     of :func:`iterate`."""
 
 
+SOLVE_CONSTANTS_KEPT = 64
+"""Most entries an optimiser keeps of what its solves would otherwise rebuild from its settings
+and their box alone (:meth:`AskTellOptimizer.solve_constant`); a full cache is emptied. A run's
+solves share a box per UAV."""
+
+_SOLVE_CONSTANTS = "_solve_constants"
+"""Where an optimiser keeps them: in its ``__dict__``, outside its dataclass fields (so outside
+its equality, ``repr`` and configuration hash), and not pickled."""
+
+
 class AskTellOptimizer(PopulationOptimizer[Any]):
     """A population optimiser given by its kernels; the base class runs both solve loops.
 
@@ -221,7 +232,34 @@ class AskTellOptimizer(PopulationOptimizer[Any]):
     def block_source(self, bounds: Bounds, shape: tuple[int, ...], t_max: int) -> BlockSource:
         """Where the solve's blocks of random numbers come from: :meth:`draw_plan`'s, for an
         initial population of ``shape``."""
-        return PlannedDraws(self.draw_plan(*shape), t_max)
+        plan = self.solve_constant(("draw_plan", shape), lambda: self.draw_plan(*shape))
+        return PlannedDraws(plan, t_max)
+
+    def solve_params(self, bounds: Bounds, t_max: int) -> tuple:
+        """:meth:`params`, built once for a box and ``t_max`` and shared by the solves over
+        them (rebuilding them took a few microseconds of every solve). The kernels and
+        :meth:`start` only read them."""
+        key = ("params", bounds.cache_key(), t_max)
+        return self.solve_constant(key, lambda: self.params(bounds, t_max))
+
+    def solve_constant(self, key: tuple, build: Callable[[], Any]) -> Any:
+        """``build()``, kept under ``key`` for the next solves: for what depends on the
+        (frozen) settings and on ``key`` alone, and is never modified."""
+        cache = self.__dict__.get(_SOLVE_CONSTANTS)
+        if cache is None:
+            cache = self.__dict__[_SOLVE_CONSTANTS] = {}
+        value = cache.get(key)
+        if value is None:
+            if len(cache) >= SOLVE_CONSTANTS_KEPT:
+                cache.clear()
+            value = cache[key] = build()
+        return value
+
+    def __getstate__(self) -> dict[str, Any]:
+        # a copy or a sweep worker's optimiser rebuilds its solve constants on first use
+        state = dict(self.__dict__)
+        state.pop(_SOLVE_CONSTANTS, None)
+        return state
 
     def initialisation(self) -> WarmStartInit:
         """How the initial population is drawn (uniform with the warm start in row 0)."""
@@ -246,7 +284,7 @@ class AskTellOptimizer(PopulationOptimizer[Any]):
         starts; for inspecting a start)."""
         points = self.initial_points(bounds, rng, x0)
         costs = evaluate_prefix(counter, points)
-        return self.start(points, costs, rng, self.params(bounds, max_iterations))
+        return self.start(points, costs, rng, self.solve_params(bounds, max_iterations))
 
     def step(
         self,
@@ -277,7 +315,7 @@ class AskTellOptimizer(PopulationOptimizer[Any]):
         budget = self.solve_budget(budget)
         x0 = check_x0(x0, bounds)
         t_max = self.planned_iterations(budget)
-        params = self.params(bounds, t_max)
+        params = self.solve_params(bounds, t_max)
         tally = open_tally(objective, bounds.dim, budget, started, self.has_compiled_loop())
         points = self.initial_points(bounds, rng, x0)
         costs = tally.evaluate_prefix(points)
@@ -340,8 +378,7 @@ def run_blocks(
     every iteration, which then runs alone in its block, and the evaluation budget before
     every block (and inside it, before every iteration).
     """
-    nfev, best_f = tally.progress()
-    history: History = ([nfev], [best_f])
+    history = HistoryRows(*tally.progress())
     iteration_limit = budget.max_iterations if budget.max_iterations is not None else UNLIMITED
     deadline_s = budget.deadline_s
     message = "iteration budget reached"
@@ -355,17 +392,50 @@ def run_blocks(
             break
         rows = 1 if deadline_s is not None else iteration_limit - nit
         state, uniforms, normals = source.next_block(state, rng, nit + 1, rows, tally.remaining())
-        rows = uniforms.shape[0]
-        draws = Draws(uniforms, normals, np.empty(rows, dtype=np.int64), np.empty(rows))
+        draws = Draws(uniforms, normals, *history.next_rows(uniforms.shape[0]))
         state, done = tally.run(kernels, state, params, draws, nit)
         done = source.iterations_done(state, nit, done)
-        history[0].extend(draws.history_nfev[:done].tolist())
-        history[1].extend(draws.history_fun[:done].tolist())
+        history.keep(done)
         nit += done
     else:
         if tally.remaining() <= 0:
             message = "evaluation budget reached"
-    return state, nit, message, history
+    return state, nit, message, history.arrays()
+
+
+class HistoryRows:
+    """A solve's history in two arrays, whose next rows each block fills in place (no lists
+    to convert at the end)."""
+
+    def __init__(self, nfev: int, best_f: float) -> None:
+        # room for the start and a block of ROWS_AHEAD iterations: most solves' whole history
+        self.nfev = np.empty(1 + ROWS_AHEAD, dtype=np.int64)
+        self.fun = np.empty(1 + ROWS_AHEAD)
+        self.nfev[0], self.fun[0] = nfev, best_f
+        self.size = 1
+
+    def next_rows(self, rows: int) -> tuple[np.ndarray, np.ndarray]:
+        """Views of the ``rows`` rows after those kept, for a block to fill."""
+        end = self.size + rows
+        if end > self.nfev.shape[0]:
+            capacity = max(end, 2 * self.nfev.shape[0])
+            self.nfev = _grown(self.nfev, self.size, capacity)
+            self.fun = _grown(self.fun, self.size, capacity)
+        return self.nfev[self.size : end], self.fun[self.size : end]
+
+    def keep(self, done: int) -> None:
+        """Keep the first ``done`` rows the block filled."""
+        self.size += done
+
+    def arrays(self) -> History:
+        """Evaluations and best cost after the start and after each iteration kept."""
+        return self.nfev[: self.size], self.fun[: self.size]
+
+
+def _grown(values: np.ndarray, kept: int, capacity: int) -> np.ndarray:
+    grown = np.empty(capacity, dtype=values.dtype)
+    grown[:kept] = values[:kept]
+    return grown
 
 
 def per_batch_draws(

@@ -10,7 +10,8 @@ parts independent, the mean's (and, for even ``h``, the Nyquist frequency's) ima
 zero and its real part times sqrt(2); the inverse real FFT is the series.
 
 That construction is linear in ``h`` standard normals, so it is a fixed ``(h, h)`` matrix
-``M`` (:func:`noise_matrix`, built once per solve with numpy's FFT), and a series is ``M z``.
+``M`` (:func:`noise_matrix`, built with numpy's FFT among a solve's settings, which the
+optimiser keeps for the next solves over the same box), and a series is ``M z``.
 Normal ``j`` of ``z`` feeds, in order, the real parts of frequencies ``0 .. h // 2``, then the
 imaginary parts of ``1 .. (h - 1) // 2`` (``colorednoise`` draws all real parts, then all
 imaginary parts, and zeroes the imaginary ones this leaves out).

@@ -156,10 +156,11 @@ def new_tally(dim: int, max_evaluations: int | None) -> tuple[np.ndarray, np.nda
     ``counts`` holds :data:`NFEV`, :data:`LIMIT` and :data:`HAS_BEST`; ``best`` is the best cost
     followed by its point.
     """
-    counts = np.array([0, NO_LIMIT if max_evaluations is None else max_evaluations, 0])
+    limit = NO_LIMIT if max_evaluations is None else max_evaluations
+    counts = np.array([0, limit, 0], dtype=np.int64)
     best = np.empty(dim + 1)
     best[0] = math.inf
-    return counts.astype(np.int64), best
+    return counts, best
 
 
 @njit(cache=True, inline="always")

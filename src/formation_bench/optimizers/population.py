@@ -8,6 +8,7 @@ one of them evaluates a batch of new points that the budget may cut short.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from time import perf_counter
@@ -150,7 +151,7 @@ def greedy_select(
     return x, f, improved
 
 
-COMPILED_NORMALS_FROM = 2000
+COMPILED_NORMALS_FROM = 1000
 """Draws of at least this many standard normals are made by :func:`_fill_standard_normals`."""
 
 
@@ -165,9 +166,10 @@ def standard_normals(rng: np.random.Generator, shape: tuple[int, ...]) -> np.nda
 
     numba's Generator runs numpy's own ziggurat on the same bit generator, one number after
     the other as numpy fills an array, in about a third of numpy's time (2.8 against 8.5 ns
-    per number on the development machine); handing it the Generator costs about 5 µs, so
-    only draws of :data:`COMPILED_NORMALS_FROM` numbers or more go to it. A test checks both
-    paths against ``rng.standard_normal``.
+    per number on the development machine); handing it the Generator costs about 5 µs (numba
+    unboxes it through three ``ctypes.cast`` calls), so only draws of
+    :data:`COMPILED_NORMALS_FROM` numbers or more go to it (both take about 8 µs for 900). A
+    test checks both paths against ``rng.standard_normal``.
     """
     size = math.prod(shape)
     if size < COMPILED_NORMALS_FROM:
@@ -201,8 +203,10 @@ class RandomAhead(NamedTuple):
     """Standard normals, one block per iteration (shape ``(rows, *normal_shape)``)."""
 
 
+@functools.lru_cache(maxsize=64)
 def no_randoms(n_uniforms: int, normal_shape: tuple[int, ...]) -> RandomAhead:
-    """An empty block: the first :func:`iteration_randoms` call draws."""
+    """An empty block: the first :func:`iteration_randoms` call draws. Shared by the solves
+    (it holds no number to modify)."""
     return RandomAhead(1, np.empty((0, n_uniforms)), np.empty((0, *normal_shape)))
 
 
@@ -219,7 +223,9 @@ def iteration_randoms(
     row = iteration - block.first_iteration
     if not 0 <= row < block.uniforms.shape[0]:
         rows = min(max(t_max - iteration + 1, 1), ROWS_AHEAD)
-        uniforms = rng.random((rows, block.uniforms.shape[1]))
+        width = block.uniforms.shape[1]
+        # a draw of no numbers leaves the Generator as it is, and is not made
+        uniforms = rng.random((rows, width)) if width else np.empty((rows, 0))
         normals = standard_normals(rng, (rows, *block.normals.shape[1:]))
         block, row = RandomAhead(iteration, uniforms, normals), 0
     return block, block.uniforms[row], block.normals[row]

@@ -141,8 +141,8 @@ class Draws(NamedTuple):
     """Filled by the block: best cost after each iteration done."""
 
 
-History = tuple[list[int], list[float]]
-"""Evaluations and best cost after the start and after each iteration."""
+History = tuple[np.ndarray, np.ndarray]
+"""Evaluations (int64) and best cost after the start and after each iteration."""
 Outcome = tuple[Any, int]
 """A block's new state and the iterations it did."""
 
@@ -185,12 +185,13 @@ class CompiledTally(Tally):
         self.counts, self.best = new_tally(dim, max_evaluations)
 
     def remaining(self) -> int:
-        # compiled.remaining's arithmetic, without a call into compiled code from Python
-        counts = self.counts
-        return UNLIMITED if counts[LIMIT] == NO_LIMIT else int(counts[LIMIT] - counts[NFEV])
+        # compiled.remaining's arithmetic, without a call into compiled code from Python (and
+        # on Python ints: item() is cheaper than numpy scalars)
+        limit = self.counts.item(LIMIT)
+        return UNLIMITED if limit == NO_LIMIT else limit - self.counts.item(NFEV)
 
     def progress(self) -> tuple[int, float]:
-        return int(self.counts[NFEV]), float(self.best[0])
+        return self.counts.item(NFEV), self.best.item(0)
 
     def evaluate_prefix(self, points: np.ndarray) -> np.ndarray:
         objective = self.objective

@@ -240,12 +240,16 @@ def _metric_line(info: MetricInfo) -> str:
 
 def value_type(name: str) -> type:
     """The Python type of a column's values (``float`` for every metric but counts)."""
-    for part in (RunDescription, Provenance):
-        hints = typing.get_type_hints(part)
-        if name in hints:
-            kinds = [t for t in typing.get_args(hints[name]) or (hints[name],) if t is not NoneType]
-            return kinds[0]
-    return float
+    if not _VALUE_TYPES:  # resolving the hints takes longer than storing a run row
+        for part in (RunDescription, Provenance):
+            for column_name, hint in typing.get_type_hints(part).items():
+                kinds = [t for t in typing.get_args(hint) or (hint,) if t is not NoneType]
+                _VALUE_TYPES.setdefault(column_name, kinds[0])
+    return _VALUE_TYPES.get(name, float)
+
+
+_VALUE_TYPES: dict[str, type] = {}
+"""The type of each non-metric column, filled by the first :func:`value_type`."""
 
 
 def is_metric_column(name: str) -> bool:

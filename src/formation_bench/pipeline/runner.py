@@ -36,8 +36,14 @@ class RunOutcome:
 
     record: RunRecord
     trace: Trace
-    table: pa.Table
-    """The trace table (:func:`trace_table`), as it is written to ``trace.parquet``."""
+    spec: RunSpec
+    """What was run (labels the trace table)."""
+
+    @functools.cached_property
+    def table(self) -> pa.Table:
+        """The trace table (:func:`trace_table`), as it is written to ``trace.parquet``; built
+        on first use (a sweep that stores no trace never needs it)."""
+        return trace_table(self.trace, self.spec)
 
     @functools.cached_property
     def frame(self) -> pd.DataFrame:
@@ -117,13 +123,12 @@ def execute(spec: RunSpec, *, progress: ProgressCallback | None = None) -> RunOu
         progress=progress,
     )
     metrics = compute_metrics(trace)
-    table = trace_table(trace, spec)
     record = RunRecord(
         RunDescription.of(spec, scenario.timing.n_steps, scenario.evaluation.settle_time_s),
         metrics,
         Provenance.here(time.perf_counter() - start),
     )
-    return RunOutcome(record, trace, table)
+    return RunOutcome(record, trace, spec)
 
 
 def trace_table(trace: Trace, spec: RunSpec) -> pa.Table:
