@@ -29,12 +29,13 @@ import numpy as np
 
 from formation_bench.experiments.suite import load_suite
 from formation_bench.pipeline.runner import execute
+from formation_bench.pipeline.spec import RunSpec
 
 PARTS = ("run", "solves", "loop bookkeeping", "outside the loop")
 """The columns, in milliseconds per run."""
 
 
-def split(label_runs: list, seeds: int) -> dict[str, float]:
+def split(label_runs: list[RunSpec], seeds: int) -> dict[str, float]:
     """Median milliseconds per run of each of :data:`PARTS` over the first ``seeds`` runs."""
     execute(label_runs[0])  # loads the optimiser's kernels from numba's cache
     rows = []
@@ -50,7 +51,7 @@ def split(label_runs: list, seeds: int) -> dict[str, float]:
 def measure(optimizers: list[str] | None, seeds: int) -> dict[str, dict[str, float]]:
     """:func:`split` of every configuration of the ``comparison`` suite (or those named)."""
     suite = load_suite("comparison")
-    by_label: dict[str, list] = {}
+    by_label: dict[str, list[RunSpec]] = {}
     for spec in suite.runs():
         by_label.setdefault(spec.optimizer_label, []).append(spec)
     unknown = sorted(set(optimizers or ()) - set(by_label))

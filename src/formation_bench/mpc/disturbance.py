@@ -74,7 +74,7 @@ class Disturbances:
             controls = controls * self.gains
         following = step_plant(states, controls, timing.period_s, timing.rk4_substeps)
         wind = self.wind
-        if not self.calm and np.any(wind != 0.0):
+        if not self.calm:
             following[:, :2] += wind * timing.period_s
         if disturbances.gust_std_m_s > 0:
             decay = math.exp(-timing.period_s / disturbances.gust_time_constant_s)

@@ -241,7 +241,9 @@ def coast(state: np.ndarray, durations: np.ndarray) -> np.ndarray:
     """Positions reached from ``state`` under zero control after each duration.
 
     Zero control keeps speed and heading, so the motion is a straight line;
-    returns ``(len(durations), 2)``.
+    returns ``(len(durations), 2)``. The plain form of an estimate's COAST extension, which
+    :func:`~formation_bench.mpc.problem.track_positions` computes compiled (a test checks the
+    two agree to the bit).
     """
     x, y, theta, v = state
     durations = np.asarray(durations, dtype=np.float64)

@@ -18,6 +18,7 @@ registry only when that reproduces its ``config_hash`` exactly.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -240,16 +241,18 @@ def _metric_line(info: MetricInfo) -> str:
 
 def value_type(name: str) -> type:
     """The Python type of a column's values (``float`` for every metric but counts)."""
-    if not _VALUE_TYPES:  # resolving the hints takes longer than storing a run row
-        for part in (RunDescription, Provenance):
-            for column_name, hint in typing.get_type_hints(part).items():
-                kinds = [t for t in typing.get_args(hint) or (hint,) if t is not NoneType]
-                _VALUE_TYPES.setdefault(column_name, kinds[0])
-    return _VALUE_TYPES.get(name, float)
+    return _value_types().get(name, float)
 
 
-_VALUE_TYPES: dict[str, type] = {}
-"""The type of each non-metric column, filled by the first :func:`value_type`."""
+@functools.cache
+def _value_types() -> dict[str, type]:
+    # resolving the type hints takes longer than storing a run row: once per process
+    types: dict[str, type] = {}
+    for part in (RunDescription, Provenance):
+        for column_name, hint in typing.get_type_hints(part).items():
+            kinds = [t for t in typing.get_args(hint) or (hint,) if t is not NoneType]
+            types.setdefault(column_name, kinds[0])
+    return types
 
 
 def is_metric_column(name: str) -> bool:
