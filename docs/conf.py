@@ -1,8 +1,10 @@
 """Sphinx configuration of the documentation site (Markdown pages through MyST, furo theme).
 
-Build: ``python -m sphinx -W --keep-going -b html docs docs/_build/html`` (CI does, with
-warnings as errors). The reference pages under ``reference/_generated/`` are written at the
-start of every build from the code's declarations (``_ext/formation_reference.py``).
+Build: ``python -m sphinx -W --keep-going -b html -d docs/_build/doctrees docs docs/_build/html``
+(CI does, with warnings as errors; ``-d`` keeps Sphinx's cache out of the site's folder). The
+reference pages under ``reference/_generated/`` are written at the start of every build from
+the code's declarations, and the committed ``reference/cli.md`` is checked against the code
+(``_ext/formation_reference.py``).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ version = release
 extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
+    "sphinx_copybutton",
 ]
 
 source_suffix = {".md": "markdown"}
@@ -42,6 +45,15 @@ myst_heading_anchors = 4
 autodoc_member_order = "bysource"
 autodoc_typehints = "description"
 autodoc_default_options = {"members": True, "show-inheritance": True}
+
+# --- the copy button (sphinx-copybutton) ---
+# a console block shows `$ COMMAND` lines and their output: the button copies the commands
+# alone, without the prompt; a block without prompts (bash, sh) is copied whole. A line ending
+# in a backslash continues its command.
+copybutton_prompt_text = "$ "
+copybutton_only_copy_prompt_lines = True
+copybutton_remove_prompts = True
+copybutton_line_continuation_character = "\\"
 
 # --- HTML ---
 html_theme = "furo"

@@ -317,3 +317,28 @@ def test_nevergrads_numpy_24_failure_is_named_with_the_versions() -> None:
     state = NevergradState(other, -np.inf, SolveGlobalRandomState(0))
     with pytest.raises(TypeError, match="unrelated"):
         NevergradOptimizer().step(state, counter, BOX, np.random.default_rng(0), 1)
+
+
+def test_only_nevergrads_known_numpy_warning_is_left_out() -> None:
+    """pyproject.toml's filterwarnings leaves out the one DeprecationWarning nevergrad's
+    meta-model raises by the thousand; the same message from elsewhere, and any other warning
+    of that module, still show."""
+    import warnings
+
+    message = (
+        "Conversion of an array with ndim > 0 to a scalar is deprecated, and will error in "
+        "future. Ensure you extract a single element from your array before performing this "
+        "operation. (Deprecated NumPy 1.25.)"
+    )
+    metamodel = "nevergrad.optimization.metamodel"
+    with warnings.catch_warnings(record=True) as caught:
+        for text, module in (
+            (message, metamodel),
+            (message, "formation_bench.optimizers.adapters.nevergrad_adapter"),
+            ("another deprecation", metamodel),
+        ):
+            warnings.warn_explicit(text, DeprecationWarning, "metamodel.py", 177, module=module)
+    assert [(str(w.message), w.category) for w in caught] == [
+        (message, DeprecationWarning),
+        ("another deprecation", DeprecationWarning),
+    ]

@@ -3,7 +3,8 @@
 The pages are written into a temporary folder, as the Sphinx build writes them into
 ``docs/reference/_generated/``, and compared with the registries and declarations they are
 generated from: every registered optimiser and scenario, every record and trace column,
-every shipped suite and every command of the command line.
+every shipped suite and every command of the command line. The command line's page is
+committed (``docs/reference/cli.md``) and must be the one the code generates.
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ def pages(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     written = extension.write_pages(folder)
     assert {path.stem for path in written} == set(extension.PAGES)
     assert extension.write_pages(folder) == []  # unchanged text: nothing rewritten
-    return {name: (folder / f"{name}.md").read_text(encoding="utf-8") for name in extension.PAGES}
+    texts = {name: (folder / f"{name}.md").read_text(encoding="utf-8") for name in extension.PAGES}
+    return {**texts, "cli": extension.page_text(extension.cli_page)}
 
 
 def code_cells(page: str) -> set[str]:
@@ -135,6 +137,45 @@ def test_every_command_and_option(pages: dict[str, str]) -> None:
                 assert f"`{flag}" in page
 
     check(build_parser(), "formation-bench")
+
+
+def test_the_committed_cli_page_is_the_generated_one() -> None:
+    extension = load_extension()
+    committed = ROOT / "docs" / extension.CLI_PAGE
+    assert extension.cli_page_is_current(committed), (
+        f"{committed.relative_to(ROOT)} differs from the command line's parser; rewrite it "
+        f"with: {extension.REGENERATE_CLI}"
+    )
+
+
+def test_the_cli_page_does_not_depend_on_the_terminal(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    extension = load_extension()
+    pages = []
+    for columns in ("60", "200"):
+        monkeypatch.setenv("COLUMNS", columns)
+        pages.append(extension.cli_page())
+    assert pages[0] == pages[1]
+
+
+def test_a_stale_or_missing_page_is_found(tmp_path: Path) -> None:
+    extension = load_extension()
+    page = tmp_path / "cli.md"
+    page.write_text(
+        extension.page_text(extension.cli_page).replace("`--out OUT`", "`--output OUT`"),
+        encoding="utf-8",
+    )
+    assert not extension.cli_page_is_current(page)
+    assert not extension.cli_page_is_current(tmp_path / "missing.md")
+
+
+def test_a_list_of_none_shows_no_default(pages: dict[str, str]) -> None:
+    """``score --budgets`` defaults to ``[None]`` (the optimiser's own budget): the default
+    column is empty there, and its meaning says ``default: default``."""
+    row = next(line for line in pages["cli"].splitlines() if line.startswith("| `--budgets"))
+    assert row.split(" | ")[1] == ""
+    assert "None" not in pages["cli"]
 
 
 def test_rst_in_docstrings_becomes_markdown() -> None:

@@ -19,6 +19,14 @@ above it, by one of two HTML comments**:
 A table with neither fails the test, so a new table of results cannot slip in without the
 command that regenerates it.
 
+The commands: every ``formation-bench ...`` command a reader would copy must be one the
+command line's parser accepts, required options included (parsed, not run). That is every
+command of a ``bash``/``sh``/``shell`` code block, every ``$ `` line of a ``console`` block
+(the other lines are its output), and every inline code span that starts with
+``formation-bench`` and gives the command arguments, unless it elides some with ``...``.
+A command of a shell line is what lies between ``&&``, ``||``, ``;`` and ``|``; ``$(...)``
+stands for one argument, and an upper-case word (``NAME``, ``DIR``) for a value to fill in.
+
 The links: a relative link of a page must name an existing file; a link to a Markdown page
 with ``#anchor`` must match a heading's slug as MyST computes it (GitHub's slugs, headings of
 the levels ``myst_heading_anchors`` in ``docs/conf.py`` gives anchors to); a page of the site
@@ -161,6 +169,8 @@ def _parse_problem(parse: Any) -> str | None:
     except _Parsed:
         return None
     except SystemExit as exit_:
+        if exit_.code in (0, None):  # --help, --version
+            return None
         return error.getvalue().strip() or f"exit {exit_.code}"
     return None
 
@@ -242,6 +252,148 @@ def test_the_checks_catch_a_bad_command(monkeypatch: pytest.MonkeyPatch) -> None
     assert (found.commands, found.machine, found.date) == (
         [["python", "-m", "perf.speed", "--quick"]], "a laptop", "2026-11-27",
     )  # fmt: skip
+
+
+# --- commands ----------------------------------------------------------------------------------
+
+SHELL_BLOCKS = ("bash", "sh", "shell")
+CONSOLE_BLOCKS = ("console",)
+PROMPT = "$ "
+SUBSTITUTION = re.compile(r"\$\([^)]*\)")
+PLACEHOLDER = re.compile(r"^[A-Z][A-Z0-9_]*$")
+OPERATORS = frozenset({"&&", "||", ";", "|", "&"})
+REDIRECTIONS = frozenset({">", ">>", "<", "2>", "&>"})
+
+
+@dataclass(frozen=True)
+class Command:
+    path: Path
+    line: int
+    argv: list[str]
+    inline: bool
+    """From an inline code span (a placeholder stands for a value) rather than a block."""
+
+    @property
+    def where(self) -> str:
+        return f"{self.path.relative_to(ROOT)}:{self.line}"
+
+
+def shell_lines(block: str, console: bool) -> Iterator[tuple[int, str]]:
+    """``(offset, line)`` of each command line of a code block: a backslash at a line's end
+    continues it; in a console block only the lines after a ``$ `` prompt."""
+    pending: list[str] = []
+    start = 0
+    for offset, raw in enumerate(block.splitlines()):
+        line = raw.strip()
+        if not pending:
+            start = offset
+            if console:
+                if not line.startswith(PROMPT):
+                    continue
+                line = line[len(PROMPT) :]
+        if line.endswith("\\"):
+            pending.append(line[:-1])
+            continue
+        yield start, " ".join([*pending, line])
+        pending = []
+    if pending:
+        yield start, " ".join(pending)
+
+
+def simple_commands(line: str) -> Iterator[list[str]]:
+    """The words of each command of a shell line, without comments and redirections."""
+    lexer = shlex.shlex(SUBSTITUTION.sub("0", line), posix=True, punctuation_chars=True)
+    lexer.whitespace_split = True
+    words: list[str] = []
+    skip_next = False
+    for token in lexer:
+        if skip_next:
+            skip_next = False
+        elif token in OPERATORS:
+            if words:
+                yield words
+            words = []
+        elif token in REDIRECTIONS:
+            skip_next = True
+        else:
+            words.append(token)
+    if words:
+        yield words
+
+
+def commands(path: Path) -> Iterator[Command]:
+    """Every ``formation-bench`` command of the page ``path`` a reader would copy."""
+    for token in _parser().parse(path.read_text(encoding="utf-8")):
+        if token.map is None:
+            continue
+        if token.type == "fence" and token.info.strip() in SHELL_BLOCKS + CONSOLE_BLOCKS:
+            console = token.info.strip() in CONSOLE_BLOCKS
+            for offset, line in shell_lines(token.content, console):
+                for argv in simple_commands(line):
+                    yield Command(path, token.map[0] + 2 + offset, argv, inline=False)
+        for child in token.children or []:
+            if child.type != "code_inline" or not child.content.startswith("formation-bench "):
+                continue
+            if "..." in child.content:
+                continue
+            for argv in simple_commands(child.content):
+                if len(argv) > 2:  # `formation-bench run` names the command: nothing to copy
+                    yield Command(path, token.map[0] + 1, argv, inline=True)
+
+
+def command_line_problems(command: Command) -> str | None:
+    from formation_bench.cli.main import build_parser
+
+    argv = command.argv
+    while argv and re.fullmatch(r"[A-Z_][A-Z0-9_]*=\S*", argv[0]):  # MPLBACKEND=Agg ...
+        argv = argv[1:]
+    if argv[:1] != ["formation-bench"]:
+        return None
+    if command.inline:
+        argv = ["0" if PLACEHOLDER.match(word) else word for word in argv]
+    return _parse_problem(lambda: build_parser().parse_args(argv[1:]))
+
+
+def all_commands() -> list[Command]:
+    return [command for path in markdown_files() for command in commands(path)]
+
+
+def test_every_command_in_the_docs_parses() -> None:
+    found = all_commands()
+    assert sum(c.argv[0] == "formation-bench" for c in found) > 100  # the extraction works
+    problems = [
+        f"{command.where}: {shlex.join(command.argv)}: {problem.splitlines()[-1]}"
+        for command in found
+        if (problem := command_line_problems(command)) is not None
+    ]
+    assert not problems, "commands a reader would copy that do not parse:\n" + "\n".join(problems)
+
+
+def test_the_command_check_reads_blocks_as_a_shell_does(tmp_path: Path) -> None:
+    page = tmp_path / "page.md"
+    page.write_text(
+        "Run `formation-bench sweep comparison --jobs 2` or `formation-bench run`.\n\n"
+        "```console\n$ formation-bench list --fields paper | head -5\nname  paper\n"
+        "$ formation-bench run --optimizer pso \\\n    --out out/x  # a comment\n```\n\n"
+        "```bash\npip install . && formation-bench reproduce --seeds $(seq 0 3) > log\n```\n\n"
+        "```text\nformation-bench sweep SUITE --out DIR [--jobs N]\n```\n"
+    )
+    found = [(c.line, c.argv, c.inline) for c in commands(page)]
+    assert found == [
+        (1, ["formation-bench", "sweep", "comparison", "--jobs", "2"], True),
+        (4, ["formation-bench", "list", "--fields", "paper"], False),
+        (4, ["head", "-5"], False),
+        (6, ["formation-bench", "run", "--optimizer", "pso", "--out", "out/x"], False),
+        (11, ["pip", "install", "."], False),
+        (11, ["formation-bench", "reproduce", "--seeds", "0"], False),
+    ]
+    problems = [command_line_problems(c) for c in commands(page)]
+    assert "required: --out" in (problems[0] or "")
+    assert problems[1:] == [None] * 5
+    console = Command(page, 1, ["formation-bench", "run", "--optimizer", "NAME"], inline=False)
+    assert "required: --out" in (command_line_problems(console) or "")
+    inline = Command(page, 1, ["formation-bench", "run", "--optimizer", "X", "--out", "D"], True)
+    assert command_line_problems(inline) is None
 
 
 # --- links -------------------------------------------------------------------------------------

@@ -3,8 +3,6 @@
 On ``builder-inited`` :func:`write_pages` writes Markdown into ``docs/reference/_generated/``
 (ignored by git), which ``docs/reference/index.md`` lists in its toctree:
 
-- ``cli.md``: every command of the ``formation-bench`` parser (``build_parser``), its
-  description and options, read from the parser itself;
 - ``optimizers.md``: every registered optimiser configuration, grouped by class, each class's
   settings as ``formation-bench list --fields NAME`` describes them
   (:func:`formation_bench.fields.describe_fields`) and each configuration's changes from them;
@@ -16,6 +14,16 @@ On ``builder-inited`` :func:`write_pages` writes Markdown into ``docs/reference/
   :mod:`formation_bench.experiments.suite`) and every shipped suite, its description and size.
 
 A page is rewritten only when its text changes, so an unchanged build reads nothing again.
+
+The command line's page is committed instead, as ``docs/reference/cli.md``, so that it can be
+read on the repository's web view without building the site: every command of the
+``formation-bench`` parser (``build_parser``), its description and options, read from the
+parser itself. It does not depend on the installed extras. Running this file as a script
+(``python docs/_ext/formation_reference.py``) rewrites it; a build whose page differs from
+the code warns (an error with ``-W``), and so does ``tests/test_docs_reference.py``.
+
+Sphinx's smart quotes are off on these pages: they would turn ``--out`` into an en dash and
+``'list'`` into curly quotes in the text cells, and a command copied from there would fail.
 """
 
 from __future__ import annotations
@@ -24,12 +32,23 @@ import argparse
 import dataclasses
 import inspect
 import re
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 GENERATED = Path("reference") / "_generated"
 """Where the pages go, relative to the documentation's source folder."""
+
+CLI_PAGE = Path("reference") / "cli.md"
+"""The committed page of the command line, relative to the documentation's source folder."""
+
+REGENERATE_CLI = "python docs/_ext/formation_reference.py"
+"""The command (from the repository's root) that rewrites :data:`CLI_PAGE`."""
+
+USAGE_WIDTH = 80
+"""Columns of the usage lines: argparse wraps them to the terminal's width otherwise, and the
+committed page must not depend on the terminal it was written from."""
 
 LONG_VALUE = 60
 """A value whose text is longer than this is shown by its length instead."""
@@ -58,9 +77,15 @@ def code(value: str) -> str:
 
 
 def table(header: Iterable[str], rows: Iterable[Iterable[str]]) -> list[str]:
-    """A Markdown table and the empty line that ends it; cells must already be Markdown."""
+    """A Markdown table and the empty line that ends it; cells must already be Markdown. The
+    comment above it is the one ``tests/test_docs_tables.py`` asks of a table that is not a
+    measurement."""
     header = list(header)
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines = [
+        "<!-- reference table -->",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+    ]
     lines += ["| " + " | ".join(row) + " |" for row in rows]
     return [*lines, ""]
 
@@ -100,7 +125,24 @@ def generated_notice(source: str) -> list[str]:
     ]
 
 
+def committed_notice(source: str, command: str) -> list[str]:
+    return [
+        "",
+        f"*Generated from {source} by `{command}` (from the repository's root); do not edit: "
+        "the tests and the site's build fail when it differs from the code.*",
+        "",
+    ]
+
+
 # --- the command line ------------------------------------------------------------------------
+
+
+def _usage(parser: argparse.ArgumentParser) -> str:
+    """``parser.format_usage()`` wrapped at :data:`USAGE_WIDTH` columns, whatever the
+    terminal."""
+    formatter = parser.formatter_class(prog=parser.prog, width=USAGE_WIDTH)
+    formatter.add_usage(parser.usage, parser._actions, parser._mutually_exclusive_groups)
+    return formatter.format_help().strip()
 
 
 def _subcommands(parser: argparse.ArgumentParser) -> Iterator[tuple[str, str, Any]]:
@@ -128,7 +170,7 @@ def _option_rows(parser: argparse.ArgumentParser) -> list[list[str]]:
         default = action.default
         shown = (
             ""
-            if default in (None, argparse.SUPPRESS, False, [])
+            if default in (None, argparse.SUPPRESS, False, [], [None])
             or (action.nargs == 0 and not default)
             else code(" ".join(map(str, default)) if isinstance(default, list) else str(default))
         )
@@ -147,7 +189,7 @@ def _command_section(
         lines += [text(parser.description), ""]
     elif help_line:
         lines += [text(help_line[:1].upper() + help_line[1:]) + ".", ""]
-    lines += ["```text", parser.format_usage().strip(), "```", ""]
+    lines += ["```text", _usage(parser), "```", ""]
     rows = _option_rows(parser)
     if rows:
         lines += table(["option", "default", "meaning"], rows)
@@ -160,10 +202,13 @@ def cli_page() -> str:
     from formation_bench.cli.main import build_parser
 
     parser = build_parser()
-    lines = ["# Command line", *generated_notice("the parser of formation\\_bench.cli.main")]
+    lines = [
+        "# Command line",
+        *committed_notice("the parser of formation\\_bench.cli.main", REGENERATE_CLI),
+    ]
     lines += [text(parser.description or ""), ""]
     lines += ["Commands: " + ", ".join(f"`{name}`" for name, _, _ in _subcommands(parser)), ""]
-    lines += ["```text", parser.format_usage().strip(), "```", ""]
+    lines += ["```text", _usage(parser), "```", ""]
     lines += table(["option", "default", "meaning"], _option_rows(parser))
     if parser.epilog:
         lines += ["```text", parser.epilog.strip(), "```", ""]
@@ -403,36 +448,87 @@ def suites_page() -> str:
 
 
 PAGES: dict[str, Callable[[], str]] = {
-    "cli": cli_page,
     "optimizers": optimizers_page,
     "scenarios": scenarios_page,
     "columns": columns_page,
     "suites": suites_page,
 }
-"""Each generated page (its file name without ``.md``) and what writes it."""
+"""Each page generated at build time (its file name without ``.md``) and what writes it."""
+
+
+def page_text(page: Callable[[], str]) -> str:
+    """A page's text as it is written: one newline at its end."""
+    return page().rstrip("\n") + "\n"
 
 
 def write_pages(folder: Path) -> list[Path]:
     """Write every page of :data:`PAGES` into ``folder``; returns the pages whose text
-    changed (the others are left untouched, so Sphinx does not read them again)."""
+    changed (the others are left untouched, so Sphinx does not read them again). A page of
+    ``folder`` that is no longer generated there is removed: it would be in no toctree."""
     folder.mkdir(parents=True, exist_ok=True)
+    for old in folder.glob("*.md"):
+        if old.stem not in PAGES:
+            old.unlink()
     changed = []
     for name, page in PAGES.items():
         path = folder / f"{name}.md"
-        content = page().rstrip("\n") + "\n"
+        content = page_text(page)
         if not path.is_file() or path.read_text(encoding="utf-8") != content:
             path.write_text(content, encoding="utf-8")
             changed.append(path)
     return changed
 
 
+def cli_page_is_current(path: Path) -> bool:
+    """Whether the committed page at ``path`` says what the parser says."""
+    return path.is_file() and path.read_text(encoding="utf-8") == page_text(cli_page)
+
+
 def _on_builder_inited(app: Any) -> None:
-    write_pages(Path(app.srcdir) / GENERATED)
+    from sphinx.util import logging
+
+    source = Path(app.srcdir)
+    write_pages(source / GENERATED)
+    if not cli_page_is_current(source / CLI_PAGE):
+        logging.getLogger(__name__).warning(
+            "%s differs from the command line's parser; rewrite it with: %s",
+            CLI_PAGE.as_posix(), REGENERATE_CLI,
+        )  # fmt: skip
+
+
+def _is_generated(docname: str) -> bool:
+    return docname == CLI_PAGE.with_suffix("").as_posix() or docname.startswith(
+        GENERATED.as_posix() + "/"
+    )
 
 
 def setup(app: Any) -> dict[str, Any]:
+    from sphinx.transforms import SphinxTransform
+
+    class LiteralDashesAndQuotes(SphinxTransform):
+        """Smart quotes off on the generated pages: marks the document as Sphinx's
+        ``is_smartquotable`` reads it, before its smart-quotes transform runs (750)."""
+
+        default_priority = 740
+
+        def apply(self, **kwargs: Any) -> None:
+            if _is_generated(self.env.docname):
+                self.document["support_smartquotes"] = False
+
     app.connect("builder-inited", _on_builder_inited)
+    app.add_transform(LiteralDashesAndQuotes)
     return {"parallel_read_safe": True, "parallel_write_safe": True}
 
 
-__all__ = ["PAGES", "setup", "write_pages"]
+def main() -> None:
+    """Rewrite the committed command-line page from the installed code."""
+    path = Path(__file__).resolve().parents[1] / CLI_PAGE
+    path.write_text(page_text(cli_page), encoding="utf-8")
+    print(f"wrote {path}", file=sys.stderr)
+
+
+__all__ = ["CLI_PAGE", "PAGES", "cli_page", "cli_page_is_current", "setup", "write_pages"]
+
+
+if __name__ == "__main__":
+    main()
