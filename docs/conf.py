@@ -53,6 +53,7 @@ autodoc_default_options = {"members": True, "show-inheritance": True}
 copybutton_prompt_text = "$ "
 copybutton_only_copy_prompt_lines = True
 copybutton_remove_prompts = True
+copybutton_copy_empty_lines = False
 copybutton_line_continuation_character = "\\"
 
 # --- HTML ---

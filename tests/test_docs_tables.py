@@ -489,12 +489,45 @@ def sphinx_build(source: Path, out: Path) -> subprocess.CompletedProcess[str]:
     )  # fmt: skip
 
 
+TYPOGRAPHIC = re.compile("[\u2013\u2014\u2018\u2019\u201c\u201d]")
+"""En and em dashes, curly quotes: what smart quotes make of ``--`` and ``'``."""
+
+
+def article_text(page: Path) -> str:
+    """The text of a built page's article (without the theme's navigation), tags stripped."""
+    import html
+
+    body = page.read_text(encoding="utf-8")
+    body = body[body.index("<article") : body.index("</article>")]
+    return html.unescape(re.sub(r"<[^>]+>", "", body))
+
+
 @pytest.mark.slow
 def test_the_site_builds_without_warnings(tmp_path: Path) -> None:
+    from formation_bench.cli.main import build_parser
+
     pytest.importorskip("sphinx")
     result = sphinx_build(DOCS, tmp_path)
     assert result.returncode == 0, result.stderr
-    assert (tmp_path / "html" / "reference" / "_generated" / "optimizers.html").is_file()
+    site = tmp_path / "html"
+    # the command line's page copies as written: --out, 'list' and "x" stay as typed
+    cli = article_text(site / "reference" / "cli.html")
+    assert TYPOGRAPHIC.findall(cli) == []
+    assert "--no-figures writes metrics" in cli and "(see 'list')" in cli
+    parsers, flags = [build_parser()], set()
+    while parsers:
+        parser = parsers.pop()
+        for action in parser._actions:
+            flags.update(action.option_strings)
+            if isinstance(action, argparse._SubParsersAction):
+                parsers += action.choices.values()
+    assert len(flags) > 30 and all(flag in cli for flag in flags)
+    # the adapters' libraries are installed with the docs: their settings are documented
+    optimizers = article_text(site / "reference" / "_generated" / "optimizers.html")
+    assert "Not available where this page was built" not in optimizers
+    assert "NevergradOptimizer" in optimizers
+    # Sphinx's cache is kept out of the site (-d)
+    assert not (site / ".doctrees").exists()
 
 
 @pytest.mark.slow
