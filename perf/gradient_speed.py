@@ -12,9 +12,17 @@ A. **closed loop**: the paper scenario without trigger, so every UAV solves at
    the instant's problem (the cost's parameters) plus ``minimize`` (the problem
    update, every cost and derivative evaluation, the solver);
 B. **same recorded problems**: the 720 problems of one modified-BSO run with
-   its warm starts, given to every optimiser in turn. The baselines see a plan
+   its warm starts, given to every optimiser. The baselines see a plan
    that is not their own, so IPOPT starts without multipliers and OSQP is set
    up afresh at every call: a common-problem comparison, slower for them.
+   Two orders, both in every repeat: **back to back** (each optimiser solves
+   all 720 problems, then the next optimiser: each finds the CPU's caches
+   holding its own data, as in a score run) and **alternating** (every
+   optimiser solves one problem before the next problem: each solve finds the
+   caches filled by another solver). The ratio of two optimisers' times
+   depends on the order; the medians of each repeat show the spread. B also
+   reports the solving thread's CPU time, which other processes on a shared
+   machine inflate less than the wall clock.
 
 Runs are interleaved (A for every optimiser, then again) ``--repeats`` times and
 pooled; CasADi and numba are built before anything is timed. Wall-clock times
@@ -50,6 +58,9 @@ from formation_bench.optimizers import get_optimizer
 from formation_bench.pipeline.runner import warm_up_kernels
 
 DEFAULT_OPTIMIZERS = ("ipopt", "ltv-osqp", "ilqr", "modified-bso")
+BACK_TO_BACK, ALTERNATING = "back to back", "alternating"
+ORDERS = (BACK_TO_BACK, ALTERNATING)
+"""The orders of section B's solves (the module docstring says what each measures)."""
 TARGETS_MS = {"ipopt": 3.0, "ltv-osqp": 1.0}
 """Median per solve the issue asks for (per UAV per instant, 2-core machine)."""
 
@@ -62,6 +73,13 @@ def _summary(seconds: list[float] | np.ndarray) -> dict[str, float]:
         "p95_ms": float(1e3 * np.percentile(values, 95)),
         "max_ms": float(1e3 * values.max()),
     }
+
+
+def schedule(names: tuple[str, ...], n_problems: int, order: str) -> list[tuple[str, int]]:
+    """``(optimizer, problem index)`` of section B's solves, in the order they run."""
+    if order == BACK_TO_BACK:
+        return [(name, i) for name in names for i in range(n_problems)]
+    return [(name, i) for i in range(n_problems) for name in names]
 
 
 def measure(
@@ -128,21 +146,41 @@ def measure(
     instants = record_instants(
         scenario, get_optimizer("modified-bso"), list(range(scenario.timing.n_steps)), seed=0
     )
-    recorded: dict[str, list[float]] = {name: [] for name in names}
+    recorded = {order: {name: [] for name in names} for order in ORDERS}
+    by_repeat = {order: {name: [] for name in names} for order in ORDERS}
+    cpu = {order: {name: [] for name in names} for order in ORDERS}
     recorded_info: dict[str, list[tuple[float, dict[str, Any]]]] = {name: [] for name in names}
     for repeat in range(repeats):
-        for name, optimizer in optimizers.items():
-            rng = np.random.default_rng(repeat)
-            for inst in instants:
-                start = time.perf_counter()
-                result = optimizer.minimize(
-                    inst.problem, inst.problem.bounds, rng, None, inst.warm_start
+        for order in ORDERS:
+            # each optimiser draws from its own Generator, the same in either order
+            rngs = {name: np.random.default_rng(repeat) for name in names}
+            times: dict[str, list[float]] = {name: [] for name in names}
+            for name, index in schedule(names, len(instants), order):
+                inst = instants[index]
+                start, start_cpu = time.perf_counter(), time.thread_time()
+                result = optimizers[name].minimize(
+                    inst.problem, inst.problem.bounds, rngs[name], None, inst.warm_start
                 )
                 seconds = time.perf_counter() - start
-                recorded[name].append(seconds)
-                recorded_info[name].append((seconds, result.info))
-    for name, times in recorded.items():
-        results["recorded"][name] = _summary(times)
+                cpu[order][name].append(time.thread_time() - start_cpu)
+                times[name].append(seconds)
+                if order == BACK_TO_BACK:
+                    recorded_info[name].append((seconds, result.info))
+            for name in names:
+                recorded[order][name].extend(times[name])
+                by_repeat[order][name].append(_median_ms(times[name]))
+    results["recorded_alternating"] = {}
+    for name in names:
+        results["recorded"][name] = {
+            **_summary(recorded[BACK_TO_BACK][name]),
+            "median_ms_by_repeat": by_repeat[BACK_TO_BACK][name],
+            "cpu_median_ms": _median_ms(cpu[BACK_TO_BACK][name]),
+        }
+        results["recorded_alternating"][name] = {
+            **_summary(recorded[ALTERNATING][name]),
+            "median_ms_by_repeat": by_repeat[ALTERNATING][name],
+            "cpu_median_ms": _median_ms(cpu[ALTERNATING][name]),
+        }
         parts = _parts(name, recorded_info[name])
         if parts:
             results.setdefault("parts", {})[f"B {name}"] = parts
@@ -246,15 +284,21 @@ def format_results(results: dict[str, Any]) -> str:
     lines += [
         "",
         "B. The same recorded problems (one modified-BSO run's 720 problems and warm starts;",
-        "   the baselines start without their own previous solve: no multipliers, fresh OSQP):",
+        "   the baselines start without their own previous solve: no multipliers, fresh OSQP),",
+        "   back to back (each optimiser over every problem in turn) and alternating (every",
+        "   optimiser on a problem before the next problem); medians of each repeat in brackets:",
         "",
-        "| optimizer | solves | median per solve | p95 per solve |",
-        "|---|---|---|---|",
+        "| optimizer | order | solves | median per solve | p95 per solve | median by repeat "
+        "| median thread CPU |",
+        "|---|---|---|---|---|---|---|",
     ]
-    for name, row in results["recorded"].items():
-        lines.append(
-            f"| {name} | {row['n']} | {row['median_ms']:.2f} ms | {row['p95_ms']:.2f} ms |"
-        )
+    for order, key in ((BACK_TO_BACK, "recorded"), (ALTERNATING, "recorded_alternating")):
+        for name, row in results[key].items():
+            repeats_ms = ", ".join(f"{ms:.3f}" for ms in row["median_ms_by_repeat"])
+            lines.append(
+                f"| {name} | {order} | {row['n']} | {row['median_ms']:.3f} ms "
+                f"| {row['p95_ms']:.3f} ms | {repeats_ms} | {row['cpu_median_ms']:.3f} ms |"
+            )
     parts = results.get("parts", {})
     osqp_rows = {k: v for k, v in parts.items() if k.endswith("ltv-osqp")}
     ipopt_rows = {k: v for k, v in parts.items() if k.endswith("ipopt")}

@@ -122,3 +122,16 @@ def test_run_split_parts_add_up_to_the_run(tmp_path, capsys):
     )
     with pytest.raises(SystemExit, match="not in the comparison suite"):
         run_split.main(["--optimizers", "no-such-optimizer"])
+
+
+def test_gradient_speed_orders_the_recorded_solves_both_ways() -> None:
+    """Section B of perf.gradient_speed: each optimiser over every problem in turn, or every
+    optimiser on a problem before the next one."""
+    from perf.gradient_speed import ALTERNATING, BACK_TO_BACK, ORDERS, schedule
+
+    assert schedule(("a", "b"), 2, BACK_TO_BACK) == [("a", 0), ("a", 1), ("b", 0), ("b", 1)]
+    assert schedule(("a", "b"), 2, ALTERNATING) == [("a", 0), ("b", 0), ("a", 1), ("b", 1)]
+    for order in ORDERS:
+        assert sorted(schedule(("a", "b", "c"), 4, order)) == [
+            (name, i) for name in "abc" for i in range(4)
+        ]
