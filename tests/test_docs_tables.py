@@ -533,14 +533,16 @@ def test_the_site_builds_without_warnings(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_the_build_fails_on_a_broken_link(tmp_path: Path) -> None:
     """A site of this configuration whose home page links to a missing page, a missing
-    anchor and a file outside the site."""
+    anchor and a file outside the site, and whose command-line page is stale."""
     pytest.importorskip("sphinx")
     source = tmp_path / "site"
     shutil.copytree(DOCS / "_ext", source / "_ext")
     shutil.copy(DOCS / "conf.py", source)
     (source / "reference").mkdir()
-    for page in ("index.md", "api.md"):
+    for page in ("index.md", "api.md", "cli.md"):
         shutil.copy(DOCS / "reference" / page, source / "reference")
+    stale_cli = source / "reference" / "cli.md"  # an option the parser no longer has
+    stale_cli.write_text(stale_cli.read_text().replace("`--out OUT`", "`--output OUT`"))
     (source / "page.md").write_text("# Page\n\n## Its section\n")
     (source / "index.md").write_text(
         "# Home\n\n[fine](page.md#its-section) [gone](no-page.md) [nowhere](page.md#nowhere)"
@@ -553,3 +555,4 @@ def test_the_build_fails_on_a_broken_link(tmp_path: Path) -> None:
     assert "'nowhere'" in result.stderr
     assert "outside" in result.stderr
     assert "its-section" not in result.stderr
+    assert "reference/cli.md differs from the command line's parser" in result.stderr
