@@ -33,7 +33,7 @@ class PlanShape:
     plan_channels: int = setting(
         2, low=1,
         doc="Values per stage of a stage-major plan; the decision vector's length must be a "
-        "multiple",
+        "multiple of it",
     )  # fmt: skip
 
     def stages(self, dim: int) -> int:
