@@ -563,7 +563,7 @@ def write_score_report(scores: pd.DataFrame, folder: Path, *, figures: bool = Tr
         markdown = _markdown(scores, tables, _notes(scores))
         figure_sets = {"": (scores, tables["profile"])}
     else:
-        shown = ", ".join(splits)
+        shown = ", ".join(split or "none (a library without splits)" for split in splits)
         note = (
             f"these score runs solved instances of {len(splits)} splits ({shown}); each split "
             "has its own leaderboard and statistics below, and no row pools them (a run over "
