@@ -140,8 +140,10 @@ if not comparison.empty:
     say(analysis.solve_time_sentence(comparison))
 
 # %%
-with_and_without = pd.concat([comparison, paper], ignore_index=True)
+# the paper suite adds the runs without the trigger, where it ran the comparison's scenario
+with_and_without, pooled = analysis.on_one_scenario({"comparison": comparison, "paper": paper})
 if not with_and_without.empty:
+    say(pooled)
     show(solves_figure(with_and_without))
     say(analysis.solves_sentence(with_and_without))
 

@@ -46,7 +46,7 @@ def imported_modules(path: Path, package: str) -> set[str]:
 
 LAYERS = ("optimizers", "mpc", "pipeline", "instances", "experiments", "analysis", "cli")
 """The subpackages, each importing only from itself and those before it."""
-SHARED = ("fields", "plugins", "_version")
+SHARED = ("fields", "plugins", "environment", "_version")
 """Modules beside the subpackages that every layer may import (as the package root)."""
 
 
@@ -312,3 +312,15 @@ def test_generic_population_code_imports_no_bso_operator(name):
     imports = imported_modules(PACKAGE / "optimizers" / name, "formation_bench.optimizers")
     offending = sorted(m for m in imports if m.rsplit(".", 1)[-1].startswith(BSO_MODULES))
     assert not offending, f"{name} imports {offending}"
+
+
+def test_the_environment_is_read_only_through_declared_variables():
+    # every command checks the declared variables before it starts: a variable read anywhere
+    # else would be an input no command checks
+    readers = [
+        str(path.relative_to(PACKAGE))
+        for path in sorted(PACKAGE.rglob("*.py"))
+        if path.name != "environment.py"
+        and any(word in path.read_text() for word in ("os.environ", "getenv", "environ["))
+    ]
+    assert readers == []

@@ -1,11 +1,13 @@
-"""Bad input through the command line: exit 2, one line naming the field or path, no
-traceback, and nothing written that looks finished."""
+"""Bad input through the command line and the environment: exit 2, one line naming the
+field, path or variable, no traceback, and nothing written that looks finished."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import select
+import shutil
 import signal
 import subprocess
 import sys
@@ -15,6 +17,10 @@ from pathlib import Path
 import pytest
 
 from formation_bench.cli.main import main
+from formation_bench.environment import DECLARED
+from formation_bench.fields import describe_fields
+from formation_bench.optimizers import OPTIMIZERS, Optimizer
+from formation_bench.pipeline.checks import MAX_LABEL_CHARS
 
 RUN = ["run", "--optimizer", "pso", "--no-figures"]
 SHORT = ["--set", "n_steps=3", "--set", "settle_time_s=0"]
@@ -168,6 +174,96 @@ BOUNDARY = [
 ]  # fmt: skip
 CASES += BOUNDARY
 
+
+def budget_settings(optimizer: Optimizer) -> list[str]:
+    """The settings an optimiser's own budget is made of: each integer field whose value its
+    ``default_budget`` reports as its iterations or evaluations."""
+    found = []
+    for info in describe_fields(optimizer):
+        if type(info.value) is not int:
+            continue
+        try:
+            changed = dataclasses.replace(optimizer, **{info.name: info.value + 1})
+        except (ValueError, TypeError):  # a limit of another field
+            continue
+        budget = changed.default_budget
+        if info.value + 1 in (budget.max_iterations, budget.max_evaluations):
+            found.append(info.name)
+    return found
+
+
+ZERO_REFUSED = "--set max_iterations: expected an integer >= 1, got 0"
+# budgets of zero: one rule for every option, suite key and optimiser setting of a budget, as
+# --max-evaluations 0 above; every budget setting of every registered optimiser, for both
+# commands that take --set
+BUDGETS = [
+    ([*RUN, "--max-iterations", "0", "--out", "{out}"],
+     "--max-iterations: must be an integer >= 1"),
+    (["run", "--optimizer", "ilqr", "--no-figures", "--max-iterations", "0", "--out", "{out}"],
+     "--max-iterations: must be an integer >= 1"),
+    ([*SCORE, "--budgets", "0", "--out", "{out}"], "--budgets: must be 'default' or a number"),
+    (["sweep", "{zero_iterations_suite}", "--out", "{out}"],
+     "budgets[0]: Budget.max_iterations must be an integer >= 1, got 0"),
+    (["sweep", "{zero_evaluations_suite}", "--out", "{out}"],
+     "budgets[0]: Budget.max_evaluations must be an integer >= 1, got 0"),
+    (["sweep", "{own_zero_budget_suite}", "--out", "{out}", "--dry-run"],
+     "optimizers[0].budgets[0]: Budget.max_iterations must be an integer >= 1, got 0"),
+    # a plugin's budget setting: declared with budget_setting(), or held to its rule anyway
+    (["--plugin", "{tutorial_plugin}", "run", "--optimizer", "my-random-search",
+      "--set", "max_iterations=0", "--out", "{out}"], ZERO_REFUSED),
+    (["--plugin", "{zero_plugin}", "run", "--optimizer", "zero-allowed-search",
+      "--set", "max_iterations=0", "--out", "{out}"], ZERO_REFUSED),
+    (["--plugin", "{zero_plugin}", "score", "--optimizer", "zero-allowed-search",
+      "--set", "max_iterations=0", "--out", "{out}"], ZERO_REFUSED),
+    (["sweep", "{zero_override_suite}", "--out", "{out}"],
+     "optimizers[0].overrides.max_iter: IlqrOptimizer.max_iter must be an integer >= 1, got 0"),
+    *[
+        (args, f"--set {field}: expected an integer >= 1, got 0")
+        for name in sorted(OPTIMIZERS)
+        for field in budget_settings(OPTIMIZERS[name].optimizer)
+        for args in (
+            ["run", "--optimizer", name, "--no-figures", "--set", f"{field}=0", "--out", "{out}"],
+            ["score", "--optimizer", name, "--set", f"{field}=0", "--out", "{out}"],
+        )
+    ],
+]  # fmt: skip
+# labels a report prints in every table row, legend and axis: bounded where a suite is read
+LABELS = [
+    (["sweep", "{long_label_suite}", "--out", "{out}"],
+     "optimizers[0].label: 'xxxxxxxxxxxxxxxx...xxxxxxxxxxxxxxxx' is 5,000 characters, more than"),
+    (["sweep", "{long_label_suite}", "--out", "{out}", "--dry-run"], "is 5,000 characters"),
+    (["sweep", "{just_over_label_suite}", "--out", "{out}"],
+     f"is {MAX_LABEL_CHARS + 1} characters, more than {MAX_LABEL_CHARS}"),
+    (["sweep", "{long_scenario_label_suite}", "--out", "{out}"],
+     "scenarios[0].label: 'ssssssssssssssss...ssssssssssssssss' is 300 characters"),
+    (["sweep", "{long_derived_label_suite}", "--out", "{out}"],
+     "optimizers[0].label: the name derived from the overrides: 'pso[population_s"),
+    (["sweep", "{long_name_suite}", "--out", "{out}"],
+     "name: 'nnnnnnnnnnnnnnnn...nnnnnnnnnnnnnnnn' is"),
+    (["sweep", "{two_line_label_suite}", "--out", "{out}"],
+     "optimizers[0].label: 'one\\ntwo' is not one line of printable characters"),
+]  # fmt: skip
+# what a command would otherwise merge without a word: a seed or budget given twice, a
+# comparison of a factor the results hold one level of
+MERGES = [
+    (["reproduce", "--no-figures", "--seeds", "0", "0", "--out", "{out}"],
+     "--seeds: 0 is given twice"),
+    (["reproduce", "--no-figures", "--seeds", "3", "1", "3", "--out", "{out}"],
+     "--seeds: 3 is given twice"),
+    ([*SCORE, "--seeds", "0", "0", "--out", "{out}"], "--seeds: 0 is given twice"),
+    ([*SCORE, "--budgets", "default", "default", "--out", "{out}"],
+     "--budgets: default is given twice"),
+    ([*SCORE, "--budgets", "1200", "1200", "--out", "{out}"], "--budgets: 1200 is given twice"),
+    (["report", "{swept}", "--compare", "budget"],
+     "--compare budget: these results hold one budget (default), so there is nothing to "
+     "compare it with; compare optimizer (2 levels)"),
+    (["report", "{swept}", "--compare", "trigger", "--no-figures"],
+     "--compare trigger: these results hold one trigger (on)"),
+    (["report", "{swept}", "--compare", "scenario", "--out", "{out}"],
+     "--compare scenario: these results hold one scenario"),
+]  # fmt: skip
+CASES += BUDGETS + LABELS + MERGES
+
 PLAIN_PLUGIN = """
 from dataclasses import dataclass
 
@@ -188,11 +284,64 @@ class Plain(Optimizer):
 
 register("plain-search", Plain(), "a field without setting()")
 """
+ZERO_PLUGIN = """
+from dataclasses import dataclass
+
+from formation_bench.fields import Validated, setting
+from formation_bench.optimizers import Budget, Optimizer, register
+
+
+@dataclass(frozen=True)
+class ZeroAllowed(Validated, Optimizer):
+    max_iterations: int = setting(40, low=0, doc="allows 0, which no budget does")
+
+    @property
+    def default_budget(self) -> Budget:
+        return Budget(max_iterations=self.max_iterations)
+
+    def minimize(self, objective, bounds, rng, budget=None, x0=None):
+        raise AssertionError("a budget of zero iterations is refused before any solve")
+
+
+register("zero-allowed-search", ZeroAllowed(), "declares its budget setting with low=0")
+"""
 PSO_AGAIN = """
 from formation_bench.optimizers import get_optimizer, register
 
 register("pso", get_optimizer("pso"), "the same name again")
 """
+
+
+PSO_SUITE = 'seeds = 1\n[[optimizers]]\nname = "pso"\n'
+SUITES = {
+    "zero_iterations_suite": "budgets = [{ max_iterations = 0 }]\n" + PSO_SUITE,
+    "zero_evaluations_suite": "budgets = [{ max_evaluations = 0 }]\n" + PSO_SUITE,
+    "own_zero_budget_suite": PSO_SUITE + "budgets = [{ max_iterations = 0 }]\n",
+    "zero_override_suite": (
+        'seeds = 1\n[[optimizers]]\nname = "ilqr"\noverrides = { max_iter = 0 }\n'
+    ),
+    "long_label_suite": PSO_SUITE + f'label = "{"x" * 5000}"\n',
+    "just_over_label_suite": PSO_SUITE + f'label = "{"x" * (MAX_LABEL_CHARS + 1)}"\n',
+    "long_scenario_label_suite": PSO_SUITE
+    + f'[[scenarios]]\nname = "paper"\nlabel = "{"s" * 300}"\n',
+    "long_derived_label_suite": PSO_SUITE
+    + "overrides = { population_size = 12, max_iterations = 100, inertia_start = 0.8 }\n",
+    "long_name_suite": f'name = "{"n" * 300}"\n' + PSO_SUITE,
+    "two_line_label_suite": PSO_SUITE + 'label = "one\\ntwo"\n',
+}
+"""Suites of the cases, each written to ``NAME.toml`` and named by its ``{NAME}`` placeholder."""
+SWEPT_SUITE = """
+name = "two-optimizers"
+seeds = 2
+[[optimizers]]
+name = "pso"
+[[optimizers]]
+name = "random-search"
+[[scenarios]]
+name = "paper"
+overrides = { n_steps = 3, settle_time_s = 0.0 }
+"""
+"""A sweep of one trigger setting, one budget and one scenario, for the cases of ``{swept}``."""
 
 
 def tutorial_plugin_source() -> str:
@@ -259,13 +408,16 @@ def places(tmp_path: Path) -> dict[str, str]:
         'seeds = 1\n[[optimizers]]\nname = "pso"\n'
         '[[scenarios]]\nname = "paper"\noverrides = { w_dst = 0.0, w_trj = 0.0 }\n'
     )
+    for name, text in SUITES.items():
+        (tmp_path / f"{name}.toml").write_text(text)
     plugins = {}
     for name, source in (("tutorial", tutorial_plugin_source()), ("plain", PLAIN_PLUGIN),
-                         ("pso", PSO_AGAIN)):  # fmt: skip
+                         ("pso", PSO_AGAIN), ("zero", ZERO_PLUGIN)):  # fmt: skip
         plugins[f"{name}_plugin"] = str(tmp_path / f"{name}_plugin.py")
         Path(plugins[f"{name}_plugin"]).write_text(source)
     return {
         **plugins,
+        **{name: str(tmp_path / f"{name}.toml") for name in SUITES},
         "long_name": str(tmp_path / ("a" * 300)),
         "long_path": str(tmp_path / "/".join(["abcdefghi"] * 500)),
         "no_optimizer_suite": str(no_optimizer_suite),
@@ -301,7 +453,17 @@ def test_the_boundary_has_at_least_twenty_five_distinct_cases():
 
 @pytest.mark.parametrize(("args", "needle"), CASES, ids=lambda v: " ".join(v)[:60] if
                          isinstance(v, list) else None)  # fmt: skip
-def test_bad_input_is_one_line_exit_2_and_writes_nothing(args, needle, places, tmp_path, capsys):
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(
+    args, needle, places, tmp_path, capsys, request
+):
+    if any("{swept}" in a for a in args):  # swept only for the cases that read it
+        places["swept"] = str(tmp_path / "swept")
+        shutil.copytree(request.getfixturevalue("swept"), places["swept"])
+    assert_refused(args, needle, places, tmp_path, capsys)
+
+
+def assert_refused(args: list[str], needle: str, places: dict[str, str], tmp_path, capsys):
+    """The command refuses in one line naming ``needle``, exit 2, and writes nothing."""
     before = snapshot(tmp_path)
     argv = [a.format(**places) for a in args]
     try:
@@ -315,6 +477,75 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(args, needle, places, t
     assert err.startswith("formation-bench"), err
     assert needle in err, err
     assert snapshot(tmp_path) == before  # nothing created, nothing overwritten
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory) -> Path:
+    from formation_bench.experiments.suite import parse_suite
+    from formation_bench.experiments.sweep import run_sweep
+
+    folder = tmp_path_factory.mktemp("swept") / "results"
+    suite = parse_suite(SWEPT_SUITE, Path("two-optimizers.toml"))
+    run_sweep(suite, folder, jobs=1, progress=False, log=lambda text: None)
+    return folder
+
+
+def test_a_factor_of_several_levels_is_compared(swept, tmp_path):
+    # the refusals of --compare above are of a factor with one level, not of --compare
+    results = tmp_path / "results"
+    shutil.copytree(swept, results)
+    assert main(["report", str(results), "--compare", "optimizer", "--no-figures"]) == 0
+    assert (results / "report" / "wilcoxon.csv").is_file()
+
+
+# every command, as it would start its work; an environment variable is checked before it
+EVERY_COMMAND = [
+    [*RUN, *SHORT, "--out", "{out}"],
+    ["reproduce", "--no-figures", "--out", "{out}"],
+    ["sweep", "paper", "--out", "{out}"],
+    ["sweep", "paper", "--out", "{out}", "--dry-run"],
+    [*SCORE, "--out", "{out}"],
+    ["report", "{results}"],
+    ["export-ioh", "{results}"],
+    ["list"],
+]
+ENVIRONMENT = [
+    (name, value, args)
+    for name in sorted(DECLARED)
+    for value in ("bogus", "", " ")
+    for args in EVERY_COMMAND
+]
+
+
+@pytest.mark.parametrize(
+    ("variable", "value", "args"), ENVIRONMENT,
+    ids=lambda v: " ".join(v)[:40] if isinstance(v, list) else repr(v),
+)  # fmt: skip
+def test_an_environment_variable_is_checked_before_any_work(
+    variable, value, args, places, tmp_path, capsys, monkeypatch
+):
+    monkeypatch.setenv(variable, value)
+    declared = DECLARED[variable]
+    needle = f"{variable} must be one of {declared.allowed} (unset: "
+    assert_refused(args, f"{needle}{declared.unset.value}), got {value!r}", places, tmp_path,
+                   capsys)  # fmt: skip
+
+
+@pytest.mark.parametrize("args", EVERY_COMMAND[:5], ids=lambda v: " ".join(v)[:40])
+def test_the_c_kernel_asked_for_where_it_was_not_built_is_refused_before_any_work(
+    args, places, tmp_path, capsys, monkeypatch
+):
+    monkeypatch.setenv("FORMATION_BENCH_COST_KERNEL", "C")
+    monkeypatch.setattr("formation_bench.mpc.native_cost.native_cost_address", lambda: None)
+    assert_refused(args, "FORMATION_BENCH_COST_KERNEL=c: the C cost kernel was not built",
+                   places, tmp_path, capsys)  # fmt: skip
+
+
+def test_every_registered_optimizer_has_its_budget_settings_covered():
+    # the cases above reach every optimiser through budget_settings(): it must find one for
+    # each (the field its default budget reads), or a new optimiser would go unchecked
+    for name in OPTIMIZERS:
+        assert budget_settings(OPTIMIZERS[name].optimizer), name
 
 
 def test_a_folder_that_is_not_writable_is_refused(tmp_path, monkeypatch, capsys):

@@ -147,6 +147,7 @@ seeds = 1
 triggers = [false]
 [[optimizers]]
 name = "modified-bso"
+label = "small-bso"
 overrides = { population_size = 12, max_iterations = 2 }
 [[scenarios]]
 name = "paper"

@@ -347,7 +347,7 @@ LONG_BUDGETS = [
     Budget(max_evaluations=2 * 30 * ROWS_AHEAD + 101),  # blocks of 64, then the rest
     Budget(max_iterations=ROWS_AHEAD + 5),
     Budget(max_evaluations=1000, max_iterations=ROWS_AHEAD + 2),
-    Budget(max_iterations=0),
+    Budget(max_iterations=1),  # the fewest a budget allows
     Budget(max_evaluations=30),
 ]
 

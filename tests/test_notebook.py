@@ -140,6 +140,34 @@ def test_trigger_tradeoff_counts_each_runs_own_uavs():
     assert list(tradeoff["solves_saved"]) == pytest.approx([0.0, 0.6, 0.5])
 
 
+def runs_on(config: str, count: int, suite: str) -> pd.DataFrame:
+    return pd.DataFrame(
+        {
+            "suite": [suite] * count,
+            "scenario_name": ["paper"] * count,
+            "scenario_overrides": ["{}"] * count,
+            "scenario_config": [config] * count,
+        }
+    )
+
+
+def test_suites_of_different_scenarios_are_not_pooled():
+    comparison, paper = runs_on("30 instants", 3, "comparison"), runs_on("60 instants", 2, "paper")
+    pooled, sentence = analysis.on_one_scenario({"comparison": comparison, "paper": paper})
+    assert list(pooled["suite"]) == ["comparison"] * 3
+    assert "2 runs of the `paper` suite ran another scenario than `comparison`'s" in sentence
+    same = runs_on("30 instants", 2, "paper")
+    pooled, sentence = analysis.on_one_scenario({"comparison": comparison, "paper": same})
+    assert len(pooled) == 5 and "left out" not in sentence
+    assert sentence.startswith("Runs of the `comparison` and `paper` suites on one scenario")
+    # records without a resolved scenario: its registered name and overrides
+    older = same.assign(scenario_config=None, scenario_overrides='{"n_steps": 60}')
+    pooled, sentence = analysis.on_one_scenario({"comparison": comparison, "paper": older})
+    assert len(pooled) == 3 and "left out" in sentence
+    pooled, _ = analysis.on_one_scenario({"comparison": comparison.iloc[:0], "paper": same})
+    assert list(pooled["suite"]) == ["paper"] * 2
+
+
 def test_paper_sentence_counts_holds():
     table = pd.DataFrame(
         [

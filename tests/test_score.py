@@ -170,33 +170,43 @@ def test_a_score_run_over_v1_is_repeatable_and_independent_of_where_it_runs(tmp_
     pd.testing.assert_frame_equal(again[columns], stored[columns], check_dtype=False)
 
 
-def test_report_writes_the_leaderboard_and_its_tables(scored, toy_v2, capsys):
+def test_report_writes_a_leaderboard_per_split_and_its_tables(scored, toy_v2, capsys):
+    # pso and pso-warm solved the test split, modified-bso all of the library: the test and
+    # validation instances are reported apart, never pooled into one row
     report = f"{scored}/rep"
     assert run_cli("report", scored, "--out", report) == 0
     printed = capsys.readouterr().out
-    assert "# Score on the instance library v2 (split all, test)" in printed
+    assert "# Score on the instance library v2, test instances (runs over split all, test)" in (
+        printed
+    )
+    assert "# Score on the instance library v2, validation instances (runs over split all)" in (
+        printed
+    )
+    assert "solved instances of 2 splits (test, validation)" in printed
     assert "**Ranked by the median normalised gap**" in printed
     assert "score_phases.csv" in printed and "score_paired.csv" in printed
     summary = pd.read_csv(f"{report}/score_summary.csv")
-    assert set(summary["optimizer"]) == {"pso", "pso-warm", "modified-bso"}
-    instances = summary.set_index("optimizer")["instances"]
-    # the non-degenerate problems of each run's split, each once
-    assert instances["pso"] == 3 and instances["modified-bso"] == len(toy_v2) - 1
-    assert summary.set_index("optimizer")["trials"]["pso"] == 2 * 3
-    assert sorted(summary["rank"]) == sorted(
-        summary["norm_gap_median"].rank(method="min").astype(int)
-    )
+    test_rows = summary[summary["split"] == "test"].set_index("optimizer")
+    assert set(test_rows.index) == {"pso", "pso-warm", "modified-bso"}
+    # the non-degenerate problems of the test split, each once, for every optimiser
+    assert (test_rows["instances"] == 3).all() and test_rows["trials"]["pso"] == 2 * 3
+    validation = summary[summary["split"] == "validation"].set_index("optimizer")
+    assert list(validation.index) == ["modified-bso"]
+    assert validation["instances"]["modified-bso"] == len(toy_v2) - 4
+    assert set(summary["split"]) == {"test", "validation"}
+    for _, rows in summary.groupby("split"):
+        assert sorted(rows["rank"]) == sorted(rows["norm_gap_median"].rank(method="min"))
     for column in ("success_norm_1e-02", "success_norm_1e-03", "success_norm_1e-04"):
         assert summary[column].between(0, 1).all()
     assert (summary["success_norm_1e-02"] >= summary["success_norm_1e-04"]).all()
     degenerate = pd.read_csv(f"{report}/score_degenerate.csv").set_index("optimizer")
     assert (degenerate["instances"] == 1).all() and len(degenerate) == 3
+    assert set(degenerate["split"]) == {"test"}
     phases = pd.read_csv(f"{report}/score_phases.csv")
-    assert set(phases["phase"]) == set(PHASES) and len(phases) == 3 * len(PHASES)
+    assert set(phases["phase"]) == set(PHASES) and len(phases) == (3 + 1) * len(PHASES)
     paired = pd.read_csv(f"{report}/score_paired.csv")
     # the leader: the smallest median normalised gap over the paired problems
-    medians = summary.set_index("optimizer")["norm_gap_median"]
-    leader = medians.sort_index().idxmin()
+    leader = test_rows["norm_gap_median"].sort_index().idxmin()
     others = sorted(o for o in ("pso", "pso-warm", "modified-bso") if o != leader)
     expected = [("pso", "modified-bso"), ("pso-warm", "modified-bso")]
     if leader != "modified-bso":
@@ -204,14 +214,25 @@ def test_report_writes_the_leaderboard_and_its_tables(scored, toy_v2, capsys):
     expected.append(("pso-warm", "pso"))
     assert list(zip(paired["x"], paired["y"], strict=True)) == expected
     assert set(paired["comparison"]) >= {"against modified-bso", "warm start against uniform start"}
-    assert (paired["pairs"] == 3).all()  # the test split's non-degenerate problems
+    assert (paired["pairs"] == 3).all() and set(paired["split"]) == {"test"}
     ert = pd.read_csv(f"{report}/score_ert.csv")
-    assert len(ert) == 3 * len(score.TARGETS)
+    assert len(ert) == (3 + 1) * len(score.TARGETS)
     assert set(ert["target_norm_gap"]) == set(score.TARGETS)
     profile = pd.read_csv(f"{report}/score_profile.csv")
-    assert profile.groupby(["budget", "optimizer"])["share"].is_monotonic_increasing.all()
-    for name in ("score_ecdf.png", "score_profile.png"):
-        assert (Path(report) / "figures" / name).stat().st_size > 10_000
+    steps = profile.groupby(["split", "budget", "optimizer"])["share"]
+    assert steps.is_monotonic_increasing.all()
+    for name in ("score_ecdf", "score_profile"):
+        for split in ("test", "validation"):
+            assert (Path(report) / "figures" / f"{name}_{split}.png").stat().st_size > 10_000
+
+
+def test_a_report_of_one_split_has_no_split_column(scored, tmp_path):
+    scores = load_scores(scored)
+    only_test = scores[scores["run_split"] == "test"]
+    write_score_report(only_test, tmp_path / "r", figures=False)
+    summary = pd.read_csv(tmp_path / "r" / "score_summary.csv")
+    assert "split" not in summary and set(summary["optimizer"]) == {"pso", "pso-warm"}
+    assert "no row pools them" not in (tmp_path / "r" / "score.md").read_text()
 
 
 def test_report_refuses_runs_of_an_older_score_format(scored, toy_v2, tmp_path, capsys):

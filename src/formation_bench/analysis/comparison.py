@@ -75,6 +75,23 @@ def choose_factor(frame: pd.DataFrame, compare: str | None) -> str:
     return "optimizer"
 
 
+def check_compared(frame: pd.DataFrame, compare: str | None) -> None:
+    """Refuse a factor asked for (``--compare``) that has a single level in the results: a
+    comparison of one level with nothing would be reported as if it were one."""
+    if compare is None or compare not in FACTORS:
+        return  # the default choice, or an unknown name that choose_factor names
+    frame = prepare(frame)
+    levels = levels_of(frame, compare)
+    if len(levels) > 1:
+        return
+    several = [f"{f} ({frame[f].nunique()} levels)" for f in FACTORS if frame[f].nunique() > 1]
+    instead = f"compare {' or '.join(several)}" if several else "no factor has two levels"
+    raise ReportError(
+        f"--compare {compare}: these results hold one {compare} ({levels[0] if levels else '-'}),"
+        f" so there is nothing to compare it with; {instead}"
+    )
+
+
 def levels_of(frame: pd.DataFrame, factor: str) -> list[str]:
     """Levels in a stable order (as the results are sorted, i.e. by suite order of names)."""
     return list(dict.fromkeys(frame[factor]))

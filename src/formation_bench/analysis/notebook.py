@@ -57,6 +57,45 @@ def suite_runs(results: pd.DataFrame, suite: str) -> pd.DataFrame:
     return results[results["suite"] == suite].reset_index(drop=True)
 
 
+def scenario_key(runs: pd.DataFrame) -> pd.Series:
+    """Per run, the scenario it ran: its stored resolved scenario (``scenario_config``), or its
+    registered name and overrides where a record holds no resolved one."""
+    named = runs["scenario_name"].astype(str) + " " + runs["scenario_overrides"].astype(str)
+    if "scenario_config" not in runs:
+        return named
+    return runs["scenario_config"].where(runs["scenario_config"].notna(), named).astype(str)
+
+
+def on_one_scenario(suites: dict[str, pd.DataFrame]) -> tuple[pd.DataFrame, str]:
+    """The runs of ``suites`` (by name, the first the one a section is about) pooled only
+    where they ran the same scenario, and a sentence saying which were pooled.
+
+    Runs of different scenarios (a different length, say) must not share a box: the pooled
+    runs are those of the first suite's scenario (its most frequent one), and a suite with
+    none of them is left out by name."""
+    present = {name: runs for name, runs in suites.items() if not runs.empty}
+    if not present:
+        return pd.DataFrame(), "No runs to pool."
+    first, *_ = present
+    keys = {name: scenario_key(runs) for name, runs in present.items()}
+    kept_key = keys[first].value_counts().index[0]
+    kept = {name: runs[keys[name] == kept_key] for name, runs in present.items()}
+    pooled = [name for name, runs in kept.items() if not runs.empty]
+    left = [name for name in present if name not in pooled or len(kept[name]) < len(present[name])]
+    frame = pd.concat([kept[name] for name in pooled], ignore_index=True)
+    names = " and ".join(f"`{name}`" for name in pooled)
+    text = f"Runs of the {names} suite{'s' if len(pooled) > 1 else ''} on one scenario"
+    if left:
+        dropped = sum(len(present[n]) - len(kept[n]) for n in left)
+        text += (
+            f"; {dropped} runs of the "
+            + " and ".join(f"`{name}`" for name in left)
+            + f" suite{'s' if len(left) > 1 else ''} ran another scenario than "
+            f"`{first}`'s and are left out, so that no box pools runs of different scenarios"
+        )
+    return frame, text + "."
+
+
 def paper_figures_table(runs: pd.DataFrame) -> pd.DataFrame:
     """Every figure the paper reports beside its median and worst value over the seeds."""
     rows = []

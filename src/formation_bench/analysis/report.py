@@ -28,6 +28,7 @@ from formation_bench.analysis.block_table import BlockTables, block_lines
 from formation_bench.analysis.comparison import (
     Report,
     analyse,
+    check_compared,
     describe_block,
     levels_of,
     prepare,
@@ -180,6 +181,7 @@ def make_report(
     """Analyse ``results_dir``, write every file; returns the report, its headline Markdown
     and the report folder (``results_dir/report`` unless ``out`` is given)."""
     results = load_results(results_dir)
+    check_compared(results, compare)
     report = analyse(results, baseline=baseline, compare=compare)
     folder = Path(out) if out is not None else Path(results_dir) / "report"
     folder.mkdir(parents=True, exist_ok=True)

@@ -525,46 +525,100 @@ def _notes(scores: pd.DataFrame) -> list[str]:
     return notes
 
 
-def _library_label(scores: pd.DataFrame) -> str:
+def _library_label(scores: pd.DataFrame, split: str = "") -> str:
+    """The libraries and the splits their runs were over; with ``split``, named as the
+    report of that split's instances only."""
     parts = []
     for library, rows in scores.groupby("library", sort=True):
         splits = ", ".join(sorted(rows["run_split"].astype(str).unique()))
-        parts.append(f"{library} (split {splits})")
+        parts.append(
+            f"{library}, {split} instances (runs over split {splits})"
+            if split
+            else f"{library} (split {splits})"
+        )
     return "; ".join(parts)
+
+
+def instance_splits(scores: pd.DataFrame) -> list[str]:
+    """The library splits of the instances ``scores`` solved (``""`` for a library without
+    splits), in sorted order."""
+    return sorted(scores["split"].astype(str).unique())
 
 
 def write_score_report(scores: pd.DataFrame, folder: Path, *, figures: bool = True) -> str:
     """Write every score file into ``folder``; returns the Markdown leaderboard. Raises
     :class:`~formation_bench.experiments.errors.StoreError` when runs were stored
-    in an older score format."""
+    in an older score format.
+
+    Instances of different splits are never pooled: with several (test and validation, e.g.
+    from a run over split ``all`` beside a run over ``test``), each split has its own
+    leaderboard and statistics, every table a ``split`` column, and every figure one file per
+    split (``score_ecdf_test.png``, ...); a run over ``all`` counts in each split with the
+    instances of that split."""
     check_score_format(scores, "a report")
     folder.mkdir(parents=True, exist_ok=True)
-    summary = summary_table(scores)
-    degenerate = degenerate_table(scores)
-    phases = phase_table(scores)
-    paired = paired_table(scores)
-    summary.to_csv(folder / "score_summary.csv", index=False)
-    degenerate.to_csv(folder / "score_degenerate.csv", index=False)
-    phases.to_csv(folder / "score_phases.csv", index=False)
-    paired.to_csv(folder / "score_paired.csv", index=False)
-    ert_table(scores).to_csv(folder / "score_ert.csv", index=False)
-    profile = profile_table(scores)
-    profile.to_csv(folder / "score_profile.csv", index=False)
-    markdown = to_markdown(
-        summary,
-        degenerate,
-        phases,
-        paired,
-        library=_library_label(scores),
-        notes=_notes(scores),
-    )
+    splits = instance_splits(scores)
+    if len(splits) == 1:
+        tables = _score_tables(scores)
+        markdown = _markdown(scores, tables, _notes(scores))
+        figure_sets = {"": (scores, tables["profile"])}
+    else:
+        shown = ", ".join(split or "none (a library without splits)" for split in splits)
+        note = (
+            f"these score runs solved instances of {len(splits)} splits ({shown}); each split "
+            "has its own leaderboard and statistics below, and no row pools them (a run over "
+            "split all counts in each, with the instances of that split)."
+        )
+        parts = {split: scores[scores["split"].astype(str) == split] for split in splits}
+        per_split = {split: _score_tables(part) for split, part in parts.items()}
+        tables = {
+            name: pd.concat(
+                [t[name].assign(split=split)[["split", *t[name].columns]]
+                 for split, t in per_split.items()],
+                ignore_index=True,
+            )
+            for name in SCORE_TABLES
+        }  # fmt: skip
+        markdown = "\n\n".join(
+            _markdown(part, per_split[split], [note, *_notes(part)], split=split)
+            for split, part in parts.items()
+        )
+        figure_sets = {split: (part, per_split[split]["profile"]) for split, part in parts.items()}
+    for name, table in tables.items():
+        table.to_csv(folder / f"score_{name}.csv", index=False)
     (folder / "score.md").write_text(markdown)
     if figures:
-        _figures(scores, profile, folder / "figures")
+        for split, (part, profile) in figure_sets.items():
+            _figures(part, profile, folder / "figures", split)
     return markdown
 
 
-def _figures(scores: pd.DataFrame, profile: pd.DataFrame, folder: Path) -> None:
+SCORE_TABLES = ("summary", "degenerate", "phases", "paired", "ert", "profile")
+"""The tables of a score report, each written to ``score_NAME.csv``."""
+
+
+def _score_tables(scores: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    tables = (
+        summary_table, degenerate_table, phase_table, paired_table, ert_table, profile_table
+    )  # fmt: skip
+    return {name: make(scores) for name, make in zip(SCORE_TABLES, tables, strict=True)}
+
+
+def _markdown(
+    scores: pd.DataFrame, tables: dict[str, pd.DataFrame], notes: list[str], split: str = ""
+) -> str:
+    return to_markdown(
+        tables["summary"],
+        tables["degenerate"],
+        tables["phases"],
+        tables["paired"],
+        library=_library_label(scores, split),
+        notes=notes,
+    )
+
+
+def _figures(scores: pd.DataFrame, profile: pd.DataFrame, folder: Path, split: str) -> None:
+    """The ECDF and profile figures; those of one split of several named after it."""
     import matplotlib.pyplot as plt
 
     from formation_bench.analysis.figures import score_ecdf_figure, score_profile_figure
@@ -573,12 +627,13 @@ def _figures(scores: pd.DataFrame, profile: pd.DataFrame, folder: Path) -> None:
     ecdf = score_ecdf_figure(ecdf_curves(scores))
     ecdf.suptitle(
         f"targets {TARGETS[0]:.0e} .. {TARGETS[-1]:.0e} of the normalised gap\n"
-        "(f - J*) / (f_warm - J*), non-degenerate instances",
+        f"(f - J*) / (f_warm - J*), non-degenerate {split + ' ' if split else ''}instances",
         fontsize=9,
     )
     profile_figure = score_profile_figure(profile)
     for axes in profile_figure.axes:
         axes.set_ylabel(f"share within tau (normalised gap <= {FAILURE_GAP:g})")
-    for name, figure in (("score_ecdf.png", ecdf), ("score_profile.png", profile_figure)):
+    for name, figure in (("score_ecdf", ecdf), ("score_profile", profile_figure)):
+        name = f"{name}_{split}.png" if split else f"{name}.png"
         figure.savefig(folder / name, dpi=120)
         plt.close(figure)

@@ -18,6 +18,7 @@ import textwrap
 from typing import Any
 
 from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
+from formation_bench.optimizers.base import BUDGET_MINIMUM
 from formation_bench.pipeline.checks import MAX_SEED
 from formation_bench.pipeline.spec import deadline_s_of_ms
 
@@ -167,8 +168,10 @@ def positive_int(text: str) -> int:
     return _integer(text, 1)
 
 
-def non_negative_int(text: str) -> int:
-    return _integer(text, 0)
+def budget_limit(text: str) -> int:
+    """A budget option's value (evaluations or iterations per solve): the rule of
+    :class:`~formation_bench.optimizers.Budget`, an integer >= its minimum."""
+    return _integer(text, BUDGET_MINIMUM)
 
 
 def deadline_ms(text: str) -> float:

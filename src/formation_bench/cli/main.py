@@ -35,16 +35,16 @@ from formation_bench.cli.common import (
     UsageError,
     add_command,
     assignment,
+    budget_limit,
     deadline_ms,
     error_message,
-    non_negative_int,
     parse_value,
-    positive_int,
     requested_budget,
     seed,
     set_error,
 )
 from formation_bench.cli.sweep_commands import add_sweep_commands
+from formation_bench.environment import EnvironmentValueError, check_environment
 from formation_bench.fields import member_text
 from formation_bench.mpc.loop import ProgressCallback
 from formation_bench.mpc.reference import REFERENCE_PATHS
@@ -374,7 +374,7 @@ def reproduce_one(
 def cmd_reproduce(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     out = Path(args.out)
-    seeds = list(dict.fromkeys(args.seeds))
+    seeds = args.seeds
     settle = get_scenario("paper").evaluation.settle_time_s
     with _staged(args) as staging:
         # after the output checks, so a refused command prints one line
@@ -557,13 +557,13 @@ def build_parser() -> _Parser:
     )
     run.add_argument(
         "--max-evaluations",
-        type=positive_int,
+        type=budget_limit,
         metavar="N",
         help="per-solve evaluation budget (default: the optimizer's own budget)",
     )
     run.add_argument(
         "--max-iterations",
-        type=non_negative_int,
+        type=budget_limit,
         metavar="N",
         help="per-solve iteration budget (default: the optimizer's own budget)",
     )
@@ -609,8 +609,10 @@ resume into their folder)."""
 
 
 def _check_arguments(args: argparse.Namespace) -> None:
-    """Checks that span a whole option or several (argparse checks each value on its own)."""
+    """Checks that span a whole option or several (argparse checks each value on its own),
+    and the environment variables the package reads."""
     try:
+        check_environment()
         out = getattr(args, "out", None)
         if out is not None:
             check_out_path(out, staged=args.command in STAGED_OUTPUT_COMMANDS)
@@ -618,10 +620,23 @@ def _check_arguments(args: argparse.Namespace) -> None:
             check_out_path(args.results, "DIR", staged=False)
         if args.command in ("reproduce", "score"):
             check_seed_count(len(set(args.seeds)))
+            _check_distinct("--seeds", args.seeds)
+        if args.command == "score":
+            _check_distinct("--budgets", args.budgets)
         if args.command in ("sweep", "score") and getattr(args, "scheduler", None) is None:
             check_jobs(args.jobs)
-    except LimitError as err:
+    except (LimitError, EnvironmentValueError) as err:
         raise UsageError(str(err)) from None
+
+
+def _check_distinct(option: str, values: list[Any]) -> None:
+    """Refuse a value given twice: each is a run of its own, and running it once would merge
+    the two without a word."""
+    seen = set()
+    for value in values:
+        if value in seen:
+            raise UsageError(f"{option}: {value} is given twice; give each value once")
+        seen.add(value)
 
 
 def _take_over_interrupts() -> Any:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from formation_bench.cli.common import (
     add_command,
+    budget_limit,
     configured_optimizer,
     deadline_ms,
     positive_int,
@@ -31,6 +32,7 @@ from formation_bench.experiments.suite import (
 )
 from formation_bench.experiments.sweep import DEFAULT_JOBS, plan, run_sweep
 from formation_bench.instances.library import LIBRARY_VERSIONS, SHIPPED_VERSION
+from formation_bench.optimizers.base import BUDGET_MINIMUM
 from formation_bench.pipeline.checks import (
     JOBS_PER_CPU,
     LimitError,
@@ -153,15 +155,16 @@ DEFAULT_BUDGET = "default"
 """A ``score --budgets`` value: the optimizer's own budget."""
 
 
-def _score_budget(text: str) -> int | None:
-    """A ``score --budgets`` value: evaluations per solve, or None for ``default``."""
+def _score_budget(text: str) -> int | str:
+    """A ``score --budgets`` value: evaluations per solve, or :data:`DEFAULT_BUDGET`."""
     if text == DEFAULT_BUDGET:
-        return None
+        return text
     try:
-        return positive_int(text)
+        return budget_limit(text)
     except argparse.ArgumentTypeError:
         raise argparse.ArgumentTypeError(
-            f"must be '{DEFAULT_BUDGET}' or a number of evaluations >= 1, got {text!r}"
+            f"must be '{DEFAULT_BUDGET}' or a number of evaluations >= {BUDGET_MINIMUM}, "
+            f"got {text!r}"
         ) from None
 
 
@@ -183,16 +186,17 @@ def cmd_score(args: argparse.Namespace) -> int:
         raise SweepError(str(err)) from None
     _, overrides = configured_optimizer(args.optimizer, args.set or [])
     budgets = [
-        requested_budget(evaluations, None, args.deadline_ms)
-        for evaluations in dict.fromkeys(args.budgets)
-    ]
+        requested_budget(None if evaluations == DEFAULT_BUDGET else evaluations, None,
+                         args.deadline_ms)
+        for evaluations in args.budgets
+    ]  # fmt: skip
     try:
         library = shipped() if args.library is None else load_shipped(args.library)
         runs = score_runs(
             args.optimizer,
             overrides,
             budgets,
-            list(dict.fromkeys(args.seeds)),
+            args.seeds,
             library=library,
             split=args.split,
             plugins=loaded_plugins(),
@@ -452,7 +456,7 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         "--budgets",
         nargs="+",
         type=_score_budget,
-        default=[None],
+        default=[DEFAULT_BUDGET],
         metavar="B",
         help="per-solve budgets: 'default' (the optimizer's own) or evaluations (default: default)",
     )

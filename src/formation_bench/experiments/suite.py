@@ -32,9 +32,12 @@ from typing import Any
 
 from formation_bench.mpc.scenario import SCENARIOS, get_scenario
 from formation_bench.optimizers import OPTIMIZERS, Budget, get_optimizer
+from formation_bench.optimizers.base import BUDGET_MINIMUM
 from formation_bench.pipeline.checks import (
+    MAX_LABEL_CHARS,
     MAX_SEED,
     LimitError,
+    check_label,
     check_run,
     check_seed_count,
 )
@@ -55,7 +58,8 @@ SUITES_DIR = Path(__file__).parent / "suites"
 """Where the shipped suites live."""
 
 TOP_LEVEL_KEYS: dict[str, str] = {
-    "name": "the suite's name (a non-empty string; default: the file's stem)",
+    "name": f"the suite's name (a non-empty string of at most {MAX_LABEL_CHARS} characters; "
+    "default: the file's stem)",
     "description": "one line saying what the suite compares (default: empty)",
     "seeds": "a count of seeds per configuration (seeds 0 .. count - 1), or a list of distinct "
     "seeds, integers from 0 to 2**128 - 1; required",
@@ -69,8 +73,9 @@ TOP_LEVEL_KEYS: dict[str, str] = {
 """The keys at the top level of a suite file, with what each holds."""
 OPTIMIZER_KEYS: dict[str, str] = {
     "name": 'a registered optimiser, or "*" for every registered one; required',
-    "label": "the name the results and the report give this configuration (default: the name "
-    "with its overrides)",
+    "label": "the name the results and the report give this configuration, at most "
+    f"{MAX_LABEL_CHARS} characters on one line (default: the name with its overrides, which "
+    "must then fit too)",
     "overrides": "a table of the optimiser's settings to change, checked before any run",
     "optional": "true: skip the entry, with a note, when the name is not registered here "
     "(an adapter whose library is not installed); default false",
@@ -80,14 +85,15 @@ OPTIMIZER_KEYS: dict[str, str] = {
 """The keys of an ``[[optimizers]]`` table."""
 SCENARIO_KEYS: dict[str, str] = {
     "name": "a registered scenario; required",
-    "label": "the name the results and the report give this configuration (default: the name "
-    "with its overrides)",
+    "label": "the name the results and the report give this configuration, at most "
+    f"{MAX_LABEL_CHARS} characters on one line (default: the name with its overrides, which "
+    "must then fit too)",
     "overrides": "a table of the scenario's settings to change, checked before any run",
 }
 """The keys of a ``[[scenarios]]`` table."""
 BUDGET_KEYS: dict[str, str] = {
-    "max_evaluations": "objective evaluations per solve",
-    "max_iterations": "optimiser iterations per solve",
+    "max_evaluations": f"objective evaluations per solve, an integer >= {BUDGET_MINIMUM}",
+    "max_iterations": f"optimiser iterations per solve, an integer >= {BUDGET_MINIMUM}",
     "deadline_ms": "wall-clock deadline per solve, in milliseconds (read into the seconds of "
     "Budget.deadline_s)",
 }
@@ -261,6 +267,7 @@ class _Validator:
         name = data.get("name", self.path.stem)
         if not isinstance(name, str) or not name:
             raise self.fail(("name",), f"must be a non-empty string, got {name!r}")
+        self.check_label(("name",), name, None if "name" in data else "the file name")
         description = data.get("description", "")
         if not isinstance(description, str):
             raise self.fail(("description",), f"must be a string, got {description!r}")
@@ -562,7 +569,19 @@ class _Validator:
         label = raw.get("label", derived)
         if not isinstance(label, str) or not label:
             raise self.fail((*where, "label"), f"must be a non-empty string, got {label!r}")
+        self.check_label((*where, "label"), label, None if "label" in raw else "the overrides")
         return Entry(label, name, canonical_json(effective))
+
+    def check_label(self, where: tuple[Any, ...], label: str, derived_from: str | None) -> None:
+        """``label`` as written, or derived from ``derived_from`` when the file gives none."""
+        try:
+            check_label(label)
+        except LimitError as err:
+            if derived_from is None:
+                raise self.fail(where, str(err)) from None
+            raise self.fail(
+                where, f"the name derived from {derived_from}: {err} (give this key a value)"
+            ) from None
 
     def check_unique(self, entries: list[Entry], key: str) -> None:
         labels: dict[str, int] = {}

@@ -16,12 +16,10 @@ from __future__ import annotations
 import enum
 import functools
 import importlib
-import os
 from dataclasses import dataclass
 from typing import Any
 
-KERNEL_VARIABLE = "FORMATION_BENCH_COST_KERNEL"
-"""Environment variable choosing the cost kernel (see :class:`CostKernel`)."""
+from formation_bench.environment import environment_variable
 
 
 class CostKernel(enum.Enum):
@@ -45,19 +43,26 @@ class CostFunction:
     """:attr:`CostKernel.C` or :attr:`CostKernel.NUMBA`: the kernel this is."""
 
 
+def _unbuilt(kernel: CostKernel) -> str | None:
+    if kernel is CostKernel.C and native_cost_address() is None:
+        return (
+            "the C cost kernel was not built when formation-bench was installed (reinstall "
+            "with a working C compiler, or set it to auto or numba)"
+        )
+    return None
+
+
+COST_KERNEL = environment_variable(
+    "FORMATION_BENCH_COST_KERNEL", CostKernel, CostKernel.AUTO,
+    "the cost kernel of compiled solve loops", usable=_unbuilt,
+)  # fmt: skip
+"""Environment variable choosing the cost kernel (see :class:`CostKernel`)."""
+KERNEL_VARIABLE = COST_KERNEL.name
+
+
 def chosen_kernel() -> CostKernel:
     """The kernel :data:`KERNEL_VARIABLE` asks for (``auto`` when it is unset)."""
-    return _kernel_named(os.environ.get(KERNEL_VARIABLE, CostKernel.AUTO.value))
-
-
-@functools.cache
-def _kernel_named(text: str) -> CostKernel:
-    value = text.strip().lower()
-    try:
-        return CostKernel(value)
-    except ValueError:
-        allowed = ", ".join(kernel.value for kernel in CostKernel)
-        raise ValueError(f"{KERNEL_VARIABLE} must be one of {allowed}, got {value!r}") from None
+    return COST_KERNEL.value()
 
 
 @functools.cache
@@ -82,11 +87,8 @@ def _cost_function(kernel: CostKernel) -> CostFunction:
     address = native_cost_address() if kernel is not CostKernel.NUMBA else None
     if address is not None:
         return CostFunction(address, None, CostKernel.C)
-    if kernel is CostKernel.C:
-        raise RuntimeError(
-            f"{KERNEL_VARIABLE}=c, but the C cost kernel was not built when formation-bench "
-            "was installed (reinstall with a working C compiler, or set it to auto or numba)"
-        )
+    if kernel is CostKernel.C:  # a command refuses this before any work; a library caller
+        raise RuntimeError(f"{KERNEL_VARIABLE}=c: {_unbuilt(kernel)}")
     from formation_bench.mpc.cost import compiled_cost
 
     numba_cost = compiled_cost()

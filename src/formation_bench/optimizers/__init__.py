@@ -15,6 +15,7 @@ from formation_bench.optimizers.base import (
     Optimizer,
     OptimizeResult,
     PopulationOptimizer,
+    budget_setting,
 )
 from formation_bench.optimizers.cem import CEM
 from formation_bench.optimizers.chaos import ChaoticMap
@@ -51,6 +52,7 @@ __all__ = [
     "PredictiveSampling",
     "RandomSearch",
     "adapters",
+    "budget_setting",
     "get_optimizer",
     "optimizer_names",
     "register",

@@ -32,6 +32,7 @@ from formation_bench.fields import (  # noqa: F401
     check_int,
     check_real,
     coerce_enum,
+    setting,
 )
 from formation_bench.optimizers.compiled import UNLIMITED
 
@@ -122,6 +123,19 @@ def _scale_into_box(points: np.ndarray, lower: np.ndarray, upper: np.ndarray) ->
             points[i, c] = lower[c] + points[i, c] * (upper[c] - lower[c])
 
 
+BUDGET_MINIMUM = 1
+"""The least every limit of a budget may be, evaluations and iterations alike, whoever sets
+it (a command's option, a suite's budget table, an optimiser's own setting): a solve allowed
+no iteration returns its warm start, or its first samples, as if it had optimised."""
+
+
+def budget_setting(default: int, *, doc: str) -> Any:
+    """An optimiser's own budget limit (the iterations or evaluations of its
+    ``default_budget``), declared with :func:`~formation_bench.fields.setting` under the rule
+    :class:`Budget` applies to every limit: an integer >= :data:`BUDGET_MINIMUM`."""
+    return setting(default, low=BUDGET_MINIMUM, doc=doc)
+
+
 @dataclass(frozen=True)
 class Budget:
     """How much an optimiser may spend on one solve.
@@ -140,9 +154,10 @@ class Budget:
     """
 
     max_evaluations: int | None = None
-    """Largest number of objective evaluations (rows evaluated), >= 1."""
+    """Largest number of objective evaluations (rows evaluated), >= :data:`BUDGET_MINIMUM`."""
     max_iterations: int | None = None
-    """Largest number of iterations (generations) after initialisation, >= 0."""
+    """Largest number of iterations (generations) after initialisation, >=
+    :data:`BUDGET_MINIMUM`."""
     deadline_s: float | None = None
     """Wall-clock time per solve, seconds, > 0; None: no deadline. A solve under a deadline
     depends on the machine's speed, so its result is not repeatable bit for bit."""
@@ -153,18 +168,9 @@ class Budget:
                 "Budget: set max_evaluations, max_iterations, or both (a deadline_s alone keeps "
                 "the optimiser's own limits)"
             )
-        if self.max_evaluations is not None and (
-            not isinstance(self.max_evaluations, int | np.integer) or self.max_evaluations < 1
-        ):
-            raise ValueError(
-                f"Budget.max_evaluations must be an integer >= 1, got {self.max_evaluations!r}"
-            )
-        if self.max_iterations is not None and (
-            not isinstance(self.max_iterations, int | np.integer) or self.max_iterations < 0
-        ):
-            raise ValueError(
-                f"Budget.max_iterations must be an integer >= 0, got {self.max_iterations!r}"
-            )
+        for name in ("max_evaluations", "max_iterations"):
+            if getattr(self, name) is not None:
+                check_int("Budget", name, getattr(self, name), BUDGET_MINIMUM)
         if self.deadline_s is not None and not (
             isinstance(self.deadline_s, int | float | np.integer | np.floating)
             and not isinstance(self.deadline_s, bool)

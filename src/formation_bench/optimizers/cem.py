@@ -52,7 +52,7 @@ from formation_bench.optimizers.ask_tell import (
     iterate,
     register_kernels,
 )
-from formation_bench.optimizers.base import Bounds, Budget
+from formation_bench.optimizers.base import Bounds, Budget, budget_setting
 from formation_bench.optimizers.cem_update import (
     SampleNormals,
     Schedule,
@@ -78,8 +78,8 @@ class CEMConfig(PlanShape, Validated):
     elite_count: int = setting(
         10, low=1, high="population_size", kernel=True, doc="K, elites the Gaussian is refit to"
     )
-    max_evaluations: int = setting(
-        1230, low=1, doc="Evaluations when the caller gives no budget (the default budget)"
+    max_evaluations: int = budget_setting(
+        1230, doc="Evaluations when the caller gives no budget (the default budget)"
     )
     initial_std: float = setting(
         0.05, low=0.0, low_open=True, high=1.0,

@@ -69,6 +69,7 @@ from formation_bench.optimizers.ask_tell import (
 from formation_bench.optimizers.base import (
     Bounds,
     Budget,
+    budget_setting,
 )
 from formation_bench.optimizers.cma_ops import (
     RUNNING,
@@ -107,8 +108,8 @@ class CMAConfig(Validated):
         0.2, low=0.0, high=1.0, low_open=True,
         doc="Initial step size as a fraction of each coordinate's range",
     )  # fmt: skip
-    max_evaluations: int = setting(
-        1230, low=1, doc="Evaluations when the caller gives no budget (the default budget)"
+    max_evaluations: int = budget_setting(
+        1230, doc="Evaluations when the caller gives no budget (the default budget)"
     )
     active: bool = setting(
         True, doc="Negative recombination weights for the worst steps (active CMA, as the tutorial)"

@@ -40,7 +40,7 @@ from formation_bench.optimizers.ask_tell import (
     iterate,
     register_kernels,
 )
-from formation_bench.optimizers.base import Bounds
+from formation_bench.optimizers.base import Bounds, budget_setting
 from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.population import WarmStartInit
 from formation_bench.optimizers.registry import register
@@ -79,8 +79,8 @@ class DEConfig(Validated):
     population_size: int = setting(
         30, low=4, doc="N, members (rand/1 needs three partners besides the member)"
     )
-    max_iterations: int = setting(
-        40, low=0,
+    max_iterations: int = budget_setting(
+        40,
         doc="Generations when the caller gives no budget; the default budget is N (T + 1)",
     )  # fmt: skip
     strategy: DEStrategy = setting(

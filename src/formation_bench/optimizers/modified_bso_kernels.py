@@ -18,6 +18,7 @@ from numba import njit
 
 from formation_bench.fields import Validated, kernel_settings_class, setting
 from formation_bench.optimizers.ask_tell import iterate, register_kernels
+from formation_bench.optimizers.base import budget_setting
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
@@ -50,8 +51,8 @@ class ModifiedBSOConfig(Validated):
     n_clusters: int = setting(
         5, low=1, high="population_size", kernel=True, doc="m, k-means clusters"
     )
-    max_iterations: int = setting(
-        40, low=0, doc="T_max when the caller gives no budget; the default budget"
+    max_iterations: int = budget_setting(
+        40, doc="T_max when the caller gives no budget; the default budget"
     )
     slope: float = setting(
         20.0, low=0.0, low_open=True, kernel=True,

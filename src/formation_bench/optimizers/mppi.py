@@ -62,7 +62,7 @@ from formation_bench.optimizers.ask_tell import (
     iterate,
     register_kernels,
 )
-from formation_bench.optimizers.base import Bounds
+from formation_bench.optimizers.base import Bounds, budget_setting
 from formation_bench.optimizers.plan_sampling import (
     NominalStart,
     PlanShape,
@@ -84,8 +84,8 @@ class MPPIConfig(PlanShape, Validated):
     """The settings of :class:`MPPI`, declared once."""
 
     population_size: int = setting(30, low=1, doc="K, perturbed plans sampled per iteration")
-    max_iterations: int = setting(
-        40, low=0,
+    max_iterations: int = budget_setting(
+        40,
         doc="Iterations when the caller gives no budget; the default budget is 1 + K + "
         "(T - 1) (K + 1) with the nominal evaluated",
     )  # fmt: skip

@@ -15,7 +15,7 @@ from numba import njit
 
 from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
 from formation_bench.optimizers.ask_tell import iterate, register_kernels
-from formation_bench.optimizers.base import Bounds
+from formation_bench.optimizers.base import Bounds, budget_setting
 from formation_bench.optimizers.bound_handling import BoundHandling
 from formation_bench.optimizers.bso_ops import (
     SHI_UNIFORMS_PER_IDEA,
@@ -52,8 +52,8 @@ class ShiConfig(Validated):
     n_clusters: int = setting(
         5, low=1, high="population_size", kernel=True, doc="m, k-means clusters"
     )
-    max_iterations: int = setting(
-        40, low=0, doc="T_max when the caller gives no budget; the default budget is N (T_max + 1)"
+    max_iterations: int = budget_setting(
+        40, doc="T_max when the caller gives no budget; the default budget is N (T_max + 1)"
     )
     slope: float = setting(
         20.0, low=0.0, low_open=True, kernel=True, doc="k, slope of the logsig step-size schedule"

@@ -48,7 +48,7 @@ from formation_bench.optimizers.ask_tell import (
     iterate,
     register_kernels,
 )
-from formation_bench.optimizers.base import Bounds
+from formation_bench.optimizers.base import Bounds, budget_setting
 from formation_bench.optimizers.plan_sampling import NominalStart, PlanShape, plan_samples
 from formation_bench.optimizers.registry import register
 
@@ -61,8 +61,8 @@ class PredictiveSamplingConfig(PlanShape, Validated):
     """The settings of :class:`PredictiveSampling`, declared once."""
 
     population_size: int = setting(9, low=1, doc="N, samples around the nominal per iteration")
-    max_iterations: int = setting(
-        136, low=0,
+    max_iterations: int = budget_setting(
+        136,
         doc="Iterations when the caller gives no budget; the default budget is 1 + N T",
     )  # fmt: skip
     noise_std: float = setting(

@@ -53,7 +53,7 @@ from formation_bench.optimizers.ask_tell import (
     iterate,
     register_kernels,
 )
-from formation_bench.optimizers.base import Bounds
+from formation_bench.optimizers.base import Bounds, budget_setting
 from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.chaos import ChaoticMap, apply_map, step_inplace
 from formation_bench.optimizers.population import WarmStartInit, greedy_select, progress
@@ -69,8 +69,8 @@ class PSOConfig(Validated):
     :class:`PSOSettings`, which the kernels rebuild and read by name."""
 
     population_size: int = setting(30, low=2, doc="N, particles")
-    max_iterations: int = setting(
-        40, low=0,
+    max_iterations: int = budget_setting(
+        40,
         doc="Iterations when the caller gives no budget; the default budget is N (T + 1)",
     )  # fmt: skip
     inertia_start: float = setting(

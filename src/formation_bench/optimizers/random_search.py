@@ -29,7 +29,7 @@ from formation_bench.optimizers.ask_tell import (
     iterate,
     register_kernels,
 )
-from formation_bench.optimizers.base import Bounds
+from formation_bench.optimizers.base import Bounds, budget_setting
 from formation_bench.optimizers.registry import register
 
 PER_SOLVE = ("lower", "width")
@@ -43,8 +43,8 @@ class RandomSearchConfig(Validated):
     population_size: int = setting(
         30, low=1, kernel=True, doc="Points drawn and evaluated per batch"
     )
-    max_iterations: int = setting(
-        40, low=0,
+    max_iterations: int = budget_setting(
+        40,
         doc="Batches after the first when the caller gives no budget; default budget N (T + 1)",
     )  # fmt: skip
 

@@ -78,6 +78,8 @@ def get_optimizer(name: str, /, **overrides: Any) -> Optimizer:
         )
     configured = dataclasses.replace(optimizer, **overrides)  # type: ignore[type-var]
     validate_fields(configured)  # also for a class that does not do it in __post_init__
+    # under the rule every budget follows, also where a plugin declared its limit otherwise
+    configured.default_budget  # noqa: B018
     return configured
 
 

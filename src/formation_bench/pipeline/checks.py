@@ -31,6 +31,10 @@ MAX_SEED = 2**128 - 1
 MAX_SEEDS = 10_000
 """Seeds per command or suite: each seed is at least one closed loop of seconds, so 10,000 of
 them are most of a day on a laptop (and a suite of a billion seeds would not fit in memory)."""
+MAX_LABEL_CHARS = 48
+"""Characters of a name a suite gives its configurations (or derives from their overrides)
+and itself: every table row, legend and axis of a report prints it in full, and a figure with
+longer ones is unreadable (the longest registered name, 33 characters, fits)."""
 JOBS_PER_CPU = 2
 """Local worker processes per CPU this process may use: each runs one closed loop at a time on
 one thread, so more only add memory, start-up time and processes to stop on Ctrl-C."""
@@ -123,6 +127,19 @@ def check_seed_count(count: int, what: str = "--seeds") -> None:
             f"{what}: {count:,} seeds is more than {MAX_SEEDS:,} (each seed is at least one "
             "closed loop of seconds: that many would run for days)"
         )
+
+
+def check_label(label: str) -> None:
+    """Refuse a label a report could not print: longer than :data:`MAX_LABEL_CHARS`, or not
+    one line of printable characters."""
+    if len(label) > MAX_LABEL_CHARS:
+        raise LimitError(
+            f"{_shortened(label, 16)!r} is {len(label):,} characters, more than "
+            f"{MAX_LABEL_CHARS} (reports print it in every table row, legend and axis); "
+            "give a shorter one"
+        )
+    if not label.isprintable():
+        raise LimitError(f"{label!r} is not one line of printable characters")
 
 
 def usable_cpus() -> int:

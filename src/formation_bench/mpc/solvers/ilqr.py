@@ -105,6 +105,7 @@ from formation_bench.optimizers.base import (
     Budget,
     Optimizer,
     OptimizeResult,
+    budget_setting,
 )
 
 STOPPED = {
@@ -121,8 +122,8 @@ that ends a solve."""
 class IlqrOptimizer(SolverCacheMixin, Optimizer):
     """Iterative LQR with a box QP per stage (Li and Todorov 2004; Tassa et al. 2014)."""
 
-    max_iter: int = setting(
-        100, low=0, doc="Iterations when the caller gives no budget; the default budget"
+    max_iter: int = budget_setting(
+        100, doc="Iterations when the caller gives no budget; the default budget"
     )
     """A budget's ``max_iterations`` replaces it."""
     cost_hessian: CostHessian = setting(

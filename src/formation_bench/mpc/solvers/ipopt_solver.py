@@ -58,6 +58,7 @@ from formation_bench.optimizers.base import (
     Budget,
     Optimizer,
     OptimizeResult,
+    budget_setting,
 )
 
 if TYPE_CHECKING:
@@ -137,8 +138,8 @@ class IpoptOptimizer(SolverCacheMixin, Optimizer):
     shooting: Shooting = setting(Shooting.SINGLE, doc="Transcription: single or multiple shooting")
     """Transcription: ``single`` or ``multiple`` shooting (default chosen by measurement,
     see docs/explanation/gradient-baselines.md)."""
-    max_iter: int = setting(
-        100, low=0, doc="IPOPT's max_iter when the caller gives no budget; the default budget"
+    max_iter: int = budget_setting(
+        100, doc="IPOPT's max_iter when the caller gives no budget; the default budget"
     )
     """A budget's ``max_iterations`` replaces it; its ``max_evaluations`` is ignored."""
     tol: float = setting(

@@ -90,6 +90,7 @@ from formation_bench.optimizers.base import (
     Budget,
     Optimizer,
     OptimizeResult,
+    budget_setting,
 )
 
 if TYPE_CHECKING:  # casadi, osqp and scipy.sparse are imported when a solver is first built
@@ -349,8 +350,8 @@ class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
         doc="QP transcription: condensed (controls only) or sparse (states as variables too)",
     )
     """The default was chosen by measurement (docs/explanation/gradient-baselines.md)."""
-    sqp_iterations: int = setting(
-        1, low=1,
+    sqp_iterations: int = budget_setting(
+        1,
         doc="Linearise-solve-line-search rounds per instant when the caller gives no budget",
     )  # fmt: skip
     """A budget's ``max_iterations`` replaces it (its ``max_evaluations`` is ignored)."""

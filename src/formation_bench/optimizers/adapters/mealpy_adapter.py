@@ -51,7 +51,13 @@ import numpy as np
 
 from formation_bench.fields import Validated, setting
 from formation_bench.optimizers.adapters.common import import_library, library_seed
-from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
+from formation_bench.optimizers.base import (
+    Bounds,
+    Budget,
+    EvaluationCounter,
+    PopulationOptimizer,
+    budget_setting,
+)
 from formation_bench.optimizers.population import evaluate_prefix
 
 ALGORITHMS = {
@@ -119,8 +125,8 @@ class MealpyOptimizer(Validated, PopulationOptimizer[MealpyState]):
     population_size: int = setting(
         30, low=10, doc="mealpy's pop_size (at least 10, mealpy's own lower limit)"
     )
-    max_evaluations: int = setting(
-        1230, low=1, doc="Evaluations when the caller gives no budget (the default budget)"
+    max_evaluations: int = budget_setting(
+        1230, doc="Evaluations when the caller gives no budget (the default budget)"
     )
 
     @property

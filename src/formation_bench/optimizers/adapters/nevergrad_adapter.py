@@ -66,7 +66,13 @@ from formation_bench.optimizers.adapters.common import (
     import_library,
     library_seed,
 )
-from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
+from formation_bench.optimizers.base import (
+    Bounds,
+    Budget,
+    EvaluationCounter,
+    PopulationOptimizer,
+    budget_setting,
+)
 
 ALGORITHMS = (
     "NGOpt",
@@ -103,8 +109,8 @@ class NevergradOptimizer(Validated, PopulationOptimizer[NevergradState]):
     batch_size: int = setting(
         30, low=1, doc="Candidates asked per iteration (nevergrad's num_workers), one call for all"
     )
-    max_evaluations: int = setting(
-        1230, low=1, doc="Evaluations when the caller gives no budget (the default budget)"
+    max_evaluations: int = budget_setting(
+        1230, doc="Evaluations when the caller gives no budget (the default budget)"
     )
 
     @property

@@ -38,7 +38,13 @@ import numpy as np
 
 from formation_bench.fields import Validated, setting
 from formation_bench.optimizers.adapters.common import finite_costs, import_library
-from formation_bench.optimizers.base import Bounds, Budget, EvaluationCounter, PopulationOptimizer
+from formation_bench.optimizers.base import (
+    Bounds,
+    Budget,
+    EvaluationCounter,
+    PopulationOptimizer,
+    budget_setting,
+)
 
 
 class PyCMAState(NamedTuple):
@@ -64,8 +70,8 @@ class PyCMA(Validated, PopulationOptimizer[PyCMAState]):
         0.2, low=0.0, high=1.0, low_open=True,
         doc="Initial step size as a fraction of each coordinate's range",
     )  # fmt: skip
-    max_evaluations: int = setting(
-        1230, low=1, doc="Evaluations when the caller gives no budget (the default budget)"
+    max_evaluations: int = budget_setting(
+        1230, doc="Evaluations when the caller gives no budget (the default budget)"
     )
 
     @property
