@@ -170,7 +170,7 @@ def _option_rows(parser: argparse.ArgumentParser) -> list[list[str]]:
         default = action.default
         shown = (
             ""
-            if default in (None, argparse.SUPPRESS, False, [], [None])
+            if default in (None, argparse.SUPPRESS, False, [])
             or (action.nargs == 0 and not default)
             else code(" ".join(map(str, default)) if isinstance(default, list) else str(default))
         )
