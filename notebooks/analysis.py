@@ -41,7 +41,7 @@ import os
 # The folder that holds the results stores (one subfolder per suite).
 RESULTS_DIR = os.environ.get("FORMATION_BENCH_RESULTS", "../results")
 # Seeds per recorded instant for the convergence curves (section 3).
-CONVERGENCE_SEEDS = int(os.environ.get("FORMATION_BENCH_CONVERGENCE_SEEDS", "5"))
+CONVERGENCE_SEEDS = os.environ.get("FORMATION_BENCH_CONVERGENCE_SEEDS", "5")
 
 # %%
 # %matplotlib inline
@@ -63,6 +63,7 @@ from formation_bench.analysis.report import analyse
 from formation_bench.mpc.scenario import get_scenario
 
 pd.set_option("display.precision", 3)
+CONVERGENCE_SEEDS = analysis.convergence_seed_count(CONVERGENCE_SEEDS)
 results = analysis.load_all(RESULTS_DIR)
 display(
     Markdown(

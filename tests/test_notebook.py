@@ -198,3 +198,14 @@ def test_missing_results_folder_is_a_clear_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="formation-bench sweep"):
         analysis.load_all(tmp_path)
     assert os.path.isdir(tmp_path)
+
+
+@pytest.mark.parametrize("value", ["", "x", "0", "-3", "2.5"])
+def test_a_bad_convergence_seed_count_names_its_variable(value: str) -> None:
+    with pytest.raises(ValueError, match="FORMATION_BENCH_CONVERGENCE_SEEDS") as raised:
+        analysis.convergence_seed_count(value)
+    assert "\n" not in str(raised.value)
+
+
+def test_a_convergence_seed_count_reads_text_and_numbers() -> None:
+    assert analysis.convergence_seed_count(" 4 ") == analysis.convergence_seed_count(4) == 4

@@ -33,6 +33,21 @@ COMPARED_METRICS = (
 state and the errors after the settle time first, the start-up apart."""
 
 
+def convergence_seed_count(value: str | int) -> int:
+    """The notebook's ``CONVERGENCE_SEEDS`` (set by ``FORMATION_BENCH_CONVERGENCE_SEEDS`` or
+    a parameter), checked before any section runs: a whole number of at least 1."""
+    try:
+        count = int(str(value).strip())
+    except ValueError:
+        count = 0
+    if count < 1:
+        raise ValueError(
+            "FORMATION_BENCH_CONVERGENCE_SEEDS (CONVERGENCE_SEEDS) must be a whole number "
+            f">= 1, got {value!r}"
+        )
+    return count
+
+
 def find_stores(results_dir: Path | str) -> dict[str, Path]:
     """Every results store below ``results_dir`` (itself included), by folder name."""
     root = Path(results_dir)
