@@ -322,6 +322,16 @@ def test_recomputing_the_costs_stores_the_kernels_and_nothing_else(library, tmp_
     assert load(tmp_path, "v2").arrays["j_star"].tolist() == part.arrays["j_star"].tolist()
 
 
+def test_a_found_by_index_outside_the_manifests_methods_is_refused(library, tmp_path):
+    part = sample(library)
+    methods = part.manifest["found_by_methods"]
+    used = int(part.arrays["found_by_index"].max())
+    short = {**part.manifest, "found_by_methods": methods[:used]}
+    Library("v2", short, part.arrays).save(tmp_path)
+    with pytest.raises(LibraryError, match=f"outside the manifest's {used} found_by_methods"):
+        load(tmp_path, "v2")
+
+
 def test_recomputing_the_costs_of_a_missing_library_is_one_line_and_exit_2(tmp_path, capsys):
     assert build_module.main(["--recompute-costs", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
