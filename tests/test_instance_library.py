@@ -6,8 +6,17 @@ from collections import Counter, defaultdict
 import numpy as np
 import pytest
 
+from formation_bench.analysis.scoring import TARGETS
 from formation_bench.instances import build as build_module
-from formation_bench.instances.build import FAMILIES, DrawPlan, SearchPlan, draw
+from formation_bench.instances.build import (
+    FAMILIES,
+    GRADIENT_SOLVERS,
+    SEARCH_OPTIMIZERS,
+    DrawPlan,
+    SearchPlan,
+    draw,
+    with_shipped_costs,
+)
 from formation_bench.instances.library import (
     DEGENERATE_J_STAR,
     J_STAR_ATOL,
@@ -18,6 +27,7 @@ from formation_bench.instances.library import (
     SOLVE_FIELDS,
     SPLITS,
     WARM_START_OPTIMAL,
+    Library,
     LibraryError,
     content_hash,
     load,
@@ -26,11 +36,13 @@ from formation_bench.instances.library import (
 )
 from formation_bench.mpc.problem import LocalProblem
 from formation_bench.mpc.scenario import GROUPS, Scenario, get_scenario
-from formation_bench.optimizers import OPTIMIZERS, get_optimizer
+from formation_bench.optimizers import OPTIMIZERS, Budget, PopulationOptimizer, get_optimizer
 from formation_bench.optimizers.adapters import ADAPTERS
 
-GAP_TOLERANCE = 1e-6
-"""How far below J* (relative) an optimiser may end before J* counts as beaten."""
+BEATEN = TARGETS[-1]
+"""How far below J* an optimiser may end on a non-degenerate instance, as a share of the
+possible improvement ``warm_cost - J*`` (the normalised gap above ``-BEATEN``): the finest
+target of the normalised gap, so that no target is reached by beating J*."""
 ADAPTER_STRIDE = 50
 """The adapters solve every 50th instance: their libraries' Python overhead makes a solve 30-650
 times slower than the compiled optimisers' (docs/explanation/optimizers.md, "Adapters")."""
@@ -125,19 +137,20 @@ def test_every_family_phase_and_trigger_is_in_v2(library):
         assert row["instances"] == cells[row["family"], row["phase"], row["trigger"]]
 
 
+def test_j_star_and_the_warm_cost_are_the_shipped_kernels_to_the_bit(everything):
+    for instance in everything:
+        problem = instance.problem
+        points = np.stack([instance.x_star, instance.warm_start])
+        stored = [instance.j_star, instance.warm_cost]
+        # the numba kernel (a Python call) and the kernel of the compiled solve loops
+        assert problem(points).tolist() == stored
+        assert problem.compiled(points).tolist() == stored
+
+
 def test_the_plain_eq14_at_x_star_gives_j_star_at_the_stated_tolerance(everything):
     for instance in everything:
         problem = instance.problem
         assert problem.bounds.contains(instance.x_star)
-        # J* and the warm cost are the compiled cost at x* and at the warm start as the
-        # library was built: the kernel of that day, whose sums the fused kernel now rounds
-        # differently (at most 3.3e-13 relative, or 2.2e-17 absolute on a cost of 3.5e-6)
-        assert problem(instance.x_star[None])[0] == pytest.approx(
-            instance.j_star, rel=1e-12, abs=1e-15
-        )
-        assert problem(instance.warm_start[None])[0] == pytest.approx(
-            instance.warm_cost, rel=1e-12, abs=1e-15
-        )
         assert instance.warm_cost >= instance.j_star
         plain = problem.reference_cost(instance.x_star)
         assert abs(plain - instance.j_star) <= J_STAR_RTOL * instance.j_star + J_STAR_ATOL
@@ -196,11 +209,134 @@ def test_no_registered_optimizer_at_its_default_budget_beats_j_star(library, nam
         result = optimizer.minimize(
             instance.problem, instance.problem.bounds, rng, None, instance.warm_start
         )
-        # how far below J* it ended, over what rounding allows (relative, then in cost units)
-        allowed = GAP_TOLERANCE * instance.j_star + J_STAR_ATOL
-        worst = max(worst, (instance.j_star - float(result.fun)) / allowed)
+        worst = max(worst, beaten_by(instance, float(result.fun)))
     # above 1, J* would not be the best known: rebuild the library
     assert worst <= 1.0
+
+
+def beaten_by(instance, cost: float) -> float:
+    """How far below J* ``cost`` is, over what is allowed (above 1: J* is beaten): on a
+    non-degenerate instance :data:`BEATEN` of the possible improvement, on a degenerate one
+    (no possible improvement to speak of) J*'s stated tolerance."""
+    below = instance.j_star - cost
+    if instance.degenerate:
+        return below / (J_STAR_RTOL * instance.j_star + J_STAR_ATOL)
+    return below / (BEATEN * (instance.warm_cost - instance.j_star))
+
+
+def test_j_star_counts_as_beaten_by_a_share_of_the_possible_improvement(library):
+    instance = library.instances("test")[0]
+    span = instance.warm_cost - instance.j_star
+    assert beaten_by(instance, instance.j_star) == 0.0
+    assert beaten_by(instance, instance.j_star - 0.5 * BEATEN * span) == pytest.approx(0.5)
+    assert beaten_by(instance, instance.j_star - 2 * BEATEN * span) == pytest.approx(2.0)
+    # on the test problems where the warm start leaves least to gain, 1e-6 of J* (the guard
+    # as it was stated) is more than 1e-3 of the possible improvement; this guard is 1e-6
+    tight = min(library.instances("test"), key=lambda i: (i.warm_cost - i.j_star) / i.j_star)
+    assert beaten_by(tight, tight.j_star - 1e-6 * tight.j_star) > 1e3
+
+
+def test_every_instance_records_the_method_that_found_its_j_star(library, v1):
+    manifest = library.manifest
+    methods = manifest["found_by_methods"]
+    found_by = [instance.found_by for instance in library]
+    assert Counter(found_by) == manifest["found_by"] and set(methods) == set(manifest["found_by"])
+    searched = {"warm start", "ipopt", "ipopt random start", *manifest["population_optimizers"]}
+    for method in methods:
+        assert method.removesuffix(" + ipopt polish") in searched, method
+    # v1 records counts only
+    assert {instance.found_by for instance in v1} == {""}
+
+
+def test_ipopt_reaches_x_star_where_it_is_recorded_as_finding_it(library):
+    """The record checked against the search, on a sample: IPOPT from the warm start (the
+    search's first method) returns x* to the bit where the record names it, and a cost above
+    J* by more than the tie tolerance where a later method found J*; where the record names
+    IPOPT from a random start, one of the search's random starts (its instance's first
+    random numbers) leads IPOPT to x*."""
+    ipopt = get_optimizer("ipopt", warm_start_duals=False)
+    plan = SearchPlan(**library.manifest["search_plan"])
+    budget = Budget(max_iterations=plan.ipopt_iterations)
+
+    def solve(instance, start):
+        problem = instance.problem
+        rng = np.random.default_rng(0)
+        return problem.bounds.clip(ipopt.minimize(problem, problem.bounds, rng, budget, start).x)
+
+    found = Counter()
+    for instance in list(library)[::9]:
+        x = solve(instance, instance.warm_start)
+        if instance.found_by == "ipopt":
+            assert np.array_equal(x, instance.x_star), instance.index
+        elif instance.found_by != "warm start" and not instance.found_by.endswith("polish"):
+            cost = float(instance.problem(x[None])[0])
+            assert cost > instance.j_star * (1 + build_module.TIE_TOLERANCE), instance.index
+        if instance.found_by == "ipopt random start":
+            rng = np.random.default_rng(np.random.SeedSequence([plan.entropy, instance.index]))
+            bounds = instance.problem.bounds
+            starts = rng.uniform(bounds.lower, bounds.upper, size=(plan.random_starts, bounds.dim))
+            assert any(np.array_equal(solve(instance, s), instance.x_star) for s in starts)
+        found[instance.found_by] += 1
+    assert found["ipopt"] and found["ipopt random start"] and len(found) > 2  # a population one
+
+
+def test_the_search_runs_an_explicit_list_of_population_optimizers(library):
+    # the list that built the shipped library, in its order (the order is part of the search)
+    assert list(SEARCH_OPTIMIZERS) == library.manifest["population_optimizers"]
+    for name in SEARCH_OPTIMIZERS:
+        assert isinstance(get_optimizer(name), PopulationOptimizer), name
+        assert name not in ADAPTERS and name not in GRADIENT_SOLVERS
+    # registered later, outside it: iLQR (a gradient solver) and the sampling methods
+    assert {"ilqr", "mppi", "cem", "icem", "predictive-sampling"} <= set(OPTIMIZERS)
+    assert not {"ilqr", "mppi", "cem", "icem", "predictive-sampling"} & set(SEARCH_OPTIMIZERS)
+    _, populations = build_module._searchers()
+    assert list(populations) == list(SEARCH_OPTIMIZERS)
+
+
+def sample(library: Library, size: int = 6) -> Library:
+    """The first ``size`` instances of ``library`` as a library of their own."""
+    return Library(
+        library.version, library.manifest, {k: v[:size] for k, v in library.arrays.items()}
+    )
+
+
+def test_recomputing_the_costs_stores_the_kernels_and_nothing_else(library, tmp_path):
+    part = sample(library)
+    off = {**part.arrays, "j_star": part.arrays["j_star"] * (1 + 1e-12)}
+    off["warm_cost"] = part.arrays["warm_cost"] * (1 + 1e-12)
+    again = with_shipped_costs(Library("v2", part.manifest, off))
+    assert again.arrays["j_star"].tolist() == part.arrays["j_star"].tolist()
+    assert again.arrays["warm_cost"].tolist() == part.arrays["warm_cost"].tolist()
+    for name in set(part.arrays) - {"j_star", "warm_cost"}:
+        assert again.arrays[name] is part.arrays[name]
+    assert "costs_computed_with" in again.manifest
+    # where the kernel's costs contradict a stored degenerate flag: refused, nothing returned
+    flags = part.arrays["degenerate"].copy()
+    flags[[1, 4]] = ~flags[[1, 4]]
+    moved = {**part.arrays, "degenerate": flags}
+    with pytest.raises(LibraryError, match=r"changes the degenerate flag of instances \[1, 4\]"):
+        with_shipped_costs(Library("v2", part.manifest, moved))
+    # the command rewrites the files in place
+    Library("v2", part.manifest, off).save(tmp_path)
+    assert build_module.main(["--recompute-costs", "--out", str(tmp_path)]) == 0
+    assert load(tmp_path, "v2").arrays["j_star"].tolist() == part.arrays["j_star"].tolist()
+
+
+def test_a_found_by_index_outside_the_manifests_methods_is_refused(library, tmp_path):
+    part = sample(library)
+    methods = part.manifest["found_by_methods"]
+    used = int(part.arrays["found_by_index"].max())
+    short = {**part.manifest, "found_by_methods": methods[:used]}
+    Library("v2", short, part.arrays).save(tmp_path)
+    with pytest.raises(LibraryError, match=f"outside the manifest's {used} found_by_methods"):
+        load(tmp_path, "v2")
+
+
+def test_recomputing_the_costs_of_a_missing_library_is_one_line_and_exit_2(tmp_path, capsys):
+    assert build_module.main(["--recompute-costs", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "v2.npz: no such library file" in err
+    assert not any(tmp_path.iterdir())
 
 
 def test_a_problem_reads_only_the_scenario_fields_the_hash_covers():
@@ -286,10 +422,13 @@ def test_a_tiny_build_stores_and_loads_every_field(tmp_path, monkeypatch):
     library = load(tmp_path, "tiny")
     assert library.has_splits and len(library) == 9
     manifest = library.manifest
-    assert manifest["format_version"] == 2 and manifest["distinct"] == 9
+    assert manifest["format_version"] == 3 and manifest["distinct"] == 9
     assert manifest["split_rule"].startswith("Per stratum cell (family, phase, trigger)")
     assert manifest["degenerate"]["j_star_below"] == DEGENERATE_J_STAR
     assert sum(manifest["found_by"].values()) == 9
+    assert manifest["population_optimizers"] == list(SEARCH_OPTIMIZERS)
+    found_by = Counter(instance.found_by for instance in library)
+    assert found_by == manifest["found_by"] and list(found_by) != [""]
     assert [f["label"] for f in manifest["draw_plan"]["families"]] == [f.label for f in families]
     # neighbour arrays padded to the largest count (swarm-5 complete: 4), sliced back
     assert library.arrays["neighbour_positions"].shape[1] == 4

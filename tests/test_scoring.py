@@ -8,6 +8,7 @@ import pandas as pd
 import pytest
 
 from formation_bench.analysis import score_report
+from formation_bench.analysis.cells import metric_column, share_cell
 from formation_bench.analysis.scoring import (
     SUCCESS_TARGETS,
     TARGETS,
@@ -333,3 +334,41 @@ def test_the_experiments_import_nothing_from_the_analysis():
             )
             assert not [n for n in names if n.startswith("formation_bench.analysis")], path.name
     assert scoring.normalised_gap is gaps.normalised_gap and scoring.TARGETS is gaps.TARGETS
+
+
+def test_a_share_that_would_print_as_100_or_0_percent_prints_as_a_count():
+    # 201 problems: all but one reach 1e-2 and 1e-3, one reaches 1e-4; one degenerate problem
+    # of 201 is at its warm start (the rest of that stratum is left out: 1 of 1)
+    rows = [trial(f"h{k}", 1.0, 2.0, 1.0 + (1e-5 if k == 0 else 5e-4)) for k in range(200)]
+    rows.append(trial("h200", 1.0, 2.0, 1.5))
+    rows.append(trial("h201", 1e-9, 1e-9, 1e-9, degenerate=True))
+    scores = pd.DataFrame(rows)
+    markdown = score_report.to_markdown(
+        score_report.summary_table(scores),
+        score_report.degenerate_table(scores),
+        score_report.phase_table(scores),
+        score_report.paired_table(scores),
+        library="v2 (split test)",
+    )
+    (line,) = [row for row in markdown.splitlines() if row.startswith("| 1 | A |")]
+    assert "| 200/201 | 200/201 | 1/201 |" in line
+    assert "100%" not in line and "| 0%" not in line
+    (line,) = [row for row in markdown.splitlines() if row.startswith("| A | 1 | 1 |")]
+    assert "| 100% |" in line  # exactly every one: a percentage
+
+
+def test_the_share_formatter_reads_100_or_0_only_when_it_is():
+    assert share_cell(587 / 588, 588) == "587/588"
+    assert share_cell(1 / 588, 588) == "1/588"
+    assert share_cell(586.5 / 588, 588) == "586.5/588"  # a problem's two trials averaged
+    assert share_cell(0.92, 588) == "92%"
+    assert share_cell(1.0, 588) == "100%" and share_cell(0.0, 588) == "0%"
+    # a share of no stated count, in a column headed in %: digits until it is not 100
+    assert share_cell(0.9996) == "99.96" and share_cell(0.999996) == "99.9996"
+    assert share_cell(0.5) == "50" and share_cell(1.0) == "100" and share_cell(0.0) == "0"
+    assert share_cell(1e-5) == "0.00100"
+    assert share_cell(math.nan, 5) == "–"
+    # a fraction metric's column goes through it
+    column = metric_column("solves_at_bound_share", [0.9996])
+    assert column.unit == "%" and column.value(0.9996) == "99.96"
+    assert column.with_unit(0.9996) == "99.96 %"

@@ -4,7 +4,8 @@ and how a metric's column is headed for a reader: its name and the unit it is sh
 A metric's name, unit and label are declared once, on :class:`~formation_bench.mpc.metrics.
 Metrics`; :data:`SHOWN_UNITS` is the one mapping from a declared unit to the unit a table
 shows (counts as ``count``, fractions as ``%``), and :func:`metric_column` picks ms or s for
-a time from the values it shows.
+a time from the values it shows. :func:`share_cell` prints every share (success rates, the
+share of runs or problems with a property, a fraction metric in %).
 """
 
 from __future__ import annotations
@@ -58,6 +59,32 @@ def reader_number(value: float | None) -> str:
     return f"{value:.{decimals}f}"
 
 
+def share_cell(share: float, total: float | None = None) -> str:
+    """A share (0 to 1) as a percentage that reads 100 or 0 only when the share is exactly 1
+    or 0; ``–`` when there is none.
+
+    With ``total``, the number of things the share is of (problems, runs), a whole percentage
+    with its sign (``92%``) or, where that would round to ``100%`` or ``0%``, the count
+    ``k/total`` (``587/588``; ``586.5/588`` when a problem's trials are averaged). Without it,
+    the number of percent for a column headed in %: three significant digits
+    (:func:`reader_number`), with more decimals where those would read 100 (``99.96``).
+    """
+    if share is None or not math.isfinite(float(share)):
+        return "–"
+    share = float(share)
+    if total is not None:
+        text = f"{share:.0%}"
+        if text in ("0%", "100%") and share not in (0.0, 1.0):
+            return f"{round(share * total, 2):g}/{total:g}"
+        return text
+    text = reader_number(100 * share)
+    decimals = 1
+    while share < 1.0 and float(text) >= 100 and decimals < 15:
+        text = f"{100 * share:.{decimals}f}"
+        decimals += 1
+    return text
+
+
 @dataclass(frozen=True)
 class MetricColumn:
     """A metric's column as a table shows it: its reader's name, its unit, and the factor
@@ -77,6 +104,8 @@ class MetricColumn:
         """A stored value in the shown unit."""
         if stored is None or not math.isfinite(float(stored)):
             return "–"
+        if self.unit == "%":
+            return share_cell(float(stored) * self.scale / 100)
         return reader_number(float(stored) * self.scale)
 
     def with_unit(self, stored: float | None) -> str:

@@ -26,6 +26,7 @@ import seaborn as sns
 from matplotlib.ticker import LogFormatter
 
 # the figures of one run are drawn without seaborn; re-exported so that every figure is here
+from formation_bench.analysis.cells import share_cell
 from formation_bench.analysis.run_figures import (  # noqa: F401
     save,
     states_figure,
@@ -81,7 +82,7 @@ def trigger_sentence(frame: pd.DataFrame) -> str:
     late = solved[solved["time_s"] >= half].shape[0]
     return (
         "the UAVs solve " + ", ".join(f"{n}" for n in counts) + f" times of {steps} "
-        f"({100 * (1 - counts.mean() / steps):.0f} % saved on average); "
+        f"({share_cell(1 - counts.mean() / steps)} % saved on average); "
         f"{early} solves fall in the first half of the run and {late} in the second."
     )
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from formation_bench.analysis.cells import share_cell
 from formation_bench.analysis.paper import PAPER_FIGURES
 from formation_bench.analysis.suite_sections import Section, sections
 from formation_bench.experiments.store import load_results, load_traces
@@ -313,7 +314,7 @@ def trigger_sentence(frame: pd.DataFrame) -> str:
         ["solves_saved", "tracking_error_max_m", "distance_error_max_m_max"]
     ].median()
     parts = [
-        f"eps = {t:g} m saves {100 * r.solves_saved:.0f} % of solves with tracking "
+        f"eps = {t:g} m saves {share_cell(r.solves_saved)} % of solves with tracking "
         f"{r.tracking_error_max_m:.2f} m and formation {r.distance_error_max_m_max:.2f} m"
         for t, r in med.iterrows()
         if t > 0

@@ -41,6 +41,7 @@ import numpy as np
 import pandas as pd
 
 from formation_bench.analysis import stats
+from formation_bench.analysis.cells import share_cell
 from formation_bench.analysis.scoring import (
     SUCCESS_TARGETS,
     TARGET_GAP,
@@ -367,8 +368,10 @@ def _g(value: float, spec: str = ".3g") -> str:
     return "-" if value is None or not math.isfinite(float(value)) else format(value, spec)
 
 
-def _share(value: float) -> str:
-    return "-" if not math.isfinite(float(value)) else f"{value:.0%}"
+def _share(value: float, problems: int) -> str:
+    """A share of ``problems`` (each problem weighted once): ``92%``, or ``587/588`` where the
+    percentage would round to 0 or 100; ``-`` when there is none."""
+    return "-" if not math.isfinite(float(value)) else share_cell(value, problems)
 
 
 def _p(value: float) -> str:
@@ -424,7 +427,9 @@ def to_markdown(
                 "|" + "---|" * (9 + len(SUCCESS_TARGETS)),
             ]
             for _, r in rows.iterrows():
-                success = " | ".join(_share(r[success_column(t)]) for t in SUCCESS_TARGETS)
+                success = " | ".join(
+                    _share(r[success_column(t)], r["instances"]) for t in SUCCESS_TARGETS
+                )
                 lines.append(
                     f"| {r['rank']} | {r['optimizer']} | {r['instances']} | {r['trials']} | "
                     f"{_g(r['norm_gap_median'])} [{_g(r['norm_gap_ci_low'])}, "
@@ -457,7 +462,7 @@ def _degenerate_section(rows: pd.DataFrame) -> list[str]:
     for _, r in rows.iterrows():
         lines.append(
             f"| {r['optimizer']} | {r['instances']} | {r['trials']} | "
-            f"{_share(r['warm_or_better_share'])} | {_g(r['abs_error_median'])} |"
+            f"{_share(r['warm_or_better_share'], r['instances'])} | {_g(r['abs_error_median'])} |"
         )
     return [*lines, ""]
 

@@ -26,11 +26,8 @@ Best-known optimum (:class:`SearchPlan`), per instance, from seeded random numbe
 
 1. IPOPT (exact gradients and Hessian through CasADi, no dual warm start) from the warm
    start and from ``random_starts`` points drawn uniformly in the bounds;
-2. every population optimiser registered when the library is built
-   (:func:`population_optimizers`: every registered optimiser but the gradient solvers
-   :data:`GRADIENT_SOLVERS` and the adapters of other libraries, whose Python overhead makes
-   a solve take seconds), at ``population_factor`` times its own default evaluation budget,
-   from the warm start;
+2. the population optimisers of :data:`SEARCH_OPTIMIZERS`, in that order, each at
+   ``population_factor`` times its own default evaluation budget, from the warm start;
 3. IPOPT once more from the best point found, to polish it.
 
 ``J*`` is the smallest cost of all of these (and of the warm start itself) by the compiled
@@ -38,10 +35,17 @@ objective, ``x*`` its point. Then each instance is flagged degenerate or not
 (:data:`~formation_bench.instances.library.DEGENERATE_J_STAR`,
 :data:`~formation_bench.instances.library.WARM_START_OPTIMAL`) and split
 (:data:`~formation_bench.instances.library.SPLIT_RULE`). The manifest records the
-plans, the optimisers searched, which method found each ``J*``, the split rule, the
-degenerate thresholds and the counts per stratum. Regenerate with::
+plans, the optimisers searched, the split rule, the degenerate thresholds and the counts per
+stratum and per method that found ``J*``; the array ``found_by_index`` says which method found
+each instance's ``J*`` (an index into the manifest's ``found_by_methods``). Regenerate with::
 
     python -m formation_bench.instances.build --out DIR --version v2 [--jobs N]
+
+``J*`` and the warm start's cost are the shipped cost kernel's values (a test checks them to
+the bit). A change to the kernel that rounds differently recomputes them, at the stored
+points and nothing else, with::
+
+    python -m formation_bench.instances.build --recompute-costs --version v2
 
 (``v1`` was drawn by an earlier procedure, 14 evenly spaced solves per loop of the three
 paper scenarios; its manifest records it.)
@@ -75,7 +79,9 @@ from formation_bench.instances.library import (
     SPLITS,
     WARM_START_OPTIMAL,
     Library,
+    LibraryError,
     is_degenerate,
+    load,
     phase_of,
     problem_hash,
     split_indices,
@@ -90,8 +96,50 @@ from formation_bench.pipeline.spec import jsonable
 
 TIE_TOLERANCE = 1e-12
 """A later method takes J* over only if it improves on it by more than this, relatively."""
+SEARCH_OPTIMIZERS = (
+    "chaotic-pso",
+    "chaotic-pso-coefficients",
+    "chaotic-pso-inertia",
+    "cls-bso",
+    "cma-es",
+    "cma-es-bipop",
+    "cma-es-ipop",
+    "cma-es-warm",
+    "de",
+    "de-current-to-best",
+    "de-immediate",
+    "de-immediate-warm",
+    "modified-bso",
+    "modified-bso-chebyshev",
+    "modified-bso-circle",
+    "modified-bso-gauss",
+    "modified-bso-iterative",
+    "modified-bso-no-all-centre",
+    "modified-bso-no-chaos-replacement",
+    "modified-bso-no-modifications",
+    "modified-bso-piecewise",
+    "modified-bso-raw-weights",
+    "modified-bso-sine",
+    "modified-bso-singer",
+    "modified-bso-sinusoidal",
+    "modified-bso-tent",
+    "modified-bso-warm",
+    "original-bso",
+    "original-bso-range-step",
+    "original-bso-warm",
+    "pso",
+    "pso-constriction",
+    "pso-warm",
+    "random-search",
+)
+"""The population optimisers the search for ``J*`` runs, in this order: v2's. Each draws
+from the instance's Generator after the one before, so the list and its order are part of
+the search; named here rather than taken from the registry, so that an optimiser registered
+later (the sampling methods, iLQR) enters the search only when added here and the library
+rebuilt. The adapters of other libraries stay out (their Python overhead makes a solve take
+seconds)."""
 GRADIENT_SOLVERS = ("ipopt", "ltv-osqp")
-"""Registered optimisers that solve only the MPC problem (searched apart, as IPOPT)."""
+"""Registered optimisers that solve only the MPC problem (IPOPT is searched apart)."""
 DRAW_ENTROPY = 20261125
 """Entropy of the SeedSequence each loop's draw is spawned from (with the loop's number)."""
 PHASE_RULE = (
@@ -255,13 +303,6 @@ def draw(plan: DrawPlan, log: Any = None) -> tuple[list[dict[str, Any]], list[di
     return instances, scenarios
 
 
-def population_optimizers() -> list[str]:
-    """Every registered optimiser that is neither a gradient solver nor an adapter."""
-    return sorted(
-        name for name in OPTIMIZERS if name not in GRADIENT_SOLVERS and name not in ADAPTERS
-    )
-
-
 def best_known(
     problem: LocalProblem,
     warm_start: np.ndarray,
@@ -306,7 +347,7 @@ def _searchers() -> tuple[Optimizer, dict[str, Optimizer]]:
     """The optimisers of the search, built once per process: IPOPT's solver is built on its
     first solve and reused for every instance of the same shape."""
     ipopt = get_optimizer("ipopt", warm_start_duals=False)
-    return ipopt, {name: get_optimizer(name) for name in population_optimizers()}
+    return ipopt, {name: get_optimizer(name) for name in SEARCH_OPTIMIZERS}
 
 
 def _search_one(
@@ -330,7 +371,7 @@ def _search_one(
 
 
 def _stack(instances: list[dict[str, Any]]) -> dict[str, np.ndarray]:
-    """The format-2 arrays: neighbour arrays NaN-padded to the largest count, the centre's
+    """The arrays of :data:`ARRAYS`: neighbour arrays NaN-padded to the largest count, the centre's
     offset sum NaN where there is none."""
     n = len(instances)
     counts = np.array([len(i["neighbour_positions"]) for i in instances], dtype=np.int16)
@@ -355,6 +396,7 @@ def _stack(instances: list[dict[str, Any]]) -> dict[str, np.ndarray]:
         "degenerate": np.array([i["degenerate"] for i in instances], dtype=bool),
         "phase_index": np.array([i["phase_index"] for i in instances], dtype=np.int8),
         "split_index": np.array([i["split_index"] for i in instances], dtype=np.int8),
+        "found_by_index": np.array([i["found_by_index"] for i in instances], dtype=np.int8),
     }
     return {
         name: special[name]
@@ -410,12 +452,14 @@ def build(
         (k, inst, built[inst["scenario_index"]], search_plan) for k, inst in enumerate(instances)
     ]
     searched = _run(tasks, jobs)
-    methods: Counter[str] = Counter()
     for k, j_star, x_star, method in searched:
         inst = instances[k]
-        inst["j_star"], inst["x_star"] = j_star, x_star
+        inst["j_star"], inst["x_star"], inst["found_by"] = j_star, x_star, method
         inst["degenerate"] = is_degenerate(j_star, inst["warm_cost"])
-        methods[method] += 1
+    methods = Counter(inst["found_by"] for inst in instances)
+    found_by_methods = [method for method, _ in methods.most_common()]
+    for inst in instances:
+        inst["found_by_index"] = found_by_methods.index(inst["found_by"])
     cells = [(i["scenario_index"], i["phase_index"], i["trigger"]) for i in instances]
     splits = split_indices(cells, [i["content_hash"] for i in instances])
     for inst, split in zip(instances, splits, strict=True):
@@ -432,10 +476,11 @@ def build(
         "drawn_by": list(draw_plan.optimizers),
         "draw_plan": draw_plan.as_json(),
         "search_plan": dataclasses.asdict(search_plan),
-        "population_optimizers": population_optimizers(),
+        "population_optimizers": list(SEARCH_OPTIMIZERS),
         "gradient_solvers": list(GRADIENT_SOLVERS),
         "adapters_not_searched": sorted(name for name in ADAPTERS if name in OPTIMIZERS),
         "found_by": dict(methods.most_common()),
+        "found_by_methods": found_by_methods,
         "j_star_tolerance": {"rtol": J_STAR_RTOL, "atol": J_STAR_ATOL},
         "degenerate": {
             "j_star_below": DEGENERATE_J_STAR,
@@ -450,6 +495,39 @@ def build(
     }
     log(f"searched {len(instances)} instances in {seconds:.0f} s")
     return Library(version, manifest, arrays)
+
+
+def with_shipped_costs(library: Library) -> Library:
+    """``library`` with ``J*`` and the warm starts' costs recomputed by the installed cost
+    kernel at the stored ``x*`` and warm starts, and nothing else changed (a format-1 library
+    stores no warm cost: it is computed on loading). Raises
+    :class:`~formation_bench.instances.library.LibraryError` where that would change a
+    degenerate flag or put a warm start below ``J*``: the library must then be rebuilt."""
+    instances = list(library)
+    j_star = np.array([float(i.problem(i.x_star[None])[0]) for i in instances])
+    warm_cost = np.array([float(i.problem(i.warm_start[None])[0]) for i in instances])
+    flagged = np.array([i.degenerate for i in instances])
+    moved = np.flatnonzero(is_degenerate(j_star, warm_cost) != flagged)
+    below = np.flatnonzero(warm_cost < j_star)
+    refusals = (
+        (moved, "changes the degenerate flag"),
+        (below, "puts the warm start below J*"),
+    )
+    for found, what in refusals:
+        if found.size:
+            raise LibraryError(
+                f"library {library.version}: the installed cost kernel {what} of instances "
+                f"{found.tolist()}; rebuild the library"
+            )
+    arrays = {**library.arrays, "j_star": j_star}
+    if "warm_cost" in arrays:
+        arrays["warm_cost"] = warm_cost
+    info = git_info()
+    manifest = {
+        **library.manifest,
+        "costs_computed_with": {"version": info["version"], "commit": info["commit"]},
+    }
+    return Library(library.version, manifest, arrays)
 
 
 def _run(tasks: list[tuple], jobs: int) -> Iterable[tuple[int, float, np.ndarray, str]]:
@@ -474,6 +552,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--version", default="v2", help="library version name (default v2)")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     parser.add_argument(
+        "--recompute-costs",
+        action="store_true",
+        help="recompute J* and the warm starts' costs of the library VERSION in --out with the "
+        "installed cost kernel, change nothing else, and write it back (no draw, no search)",
+    )
+    parser.add_argument(
         "--per-phase",
         type=int,
         nargs=3,
@@ -482,6 +566,15 @@ def main(argv: list[str] | None = None) -> int:
         help="solves drawn per loop and phase (default %(default)s)",
     )
     args = parser.parse_args(argv)
+    if args.recompute_costs:
+        try:
+            library = with_shipped_costs(load(args.out, args.version))
+        except LibraryError as err:
+            print(f"{parser.prog}: error: {err}", file=sys.stderr)
+            return 2
+        for path in library.save(args.out):
+            print(f"wrote {path}")
+        return 0
     library = build(
         DrawPlan(per_phase=tuple(args.per_phase)),
         version=args.version,

@@ -12,8 +12,10 @@ and whether it is degenerate.
 
 A library is stored as one ``.npz`` file of stacked arrays (in format 2 the neighbour arrays
 are padded to the largest neighbour count, with ``neighbour_count`` saying how many rows are
-real) and a ``.json`` manifest saying how it was drawn and how ``J*`` was found. Format 1
-(``v1``) stored the first thirteen arrays only; the fields it lacks are computed on loading.
+real) and a ``.json`` manifest saying how it was drawn and how ``J*`` was found; format 3
+adds which method of the search found each ``J*``. Format 1 (``v1``) stored the first
+thirteen arrays only; the fields it lacks are computed on loading (which method found ``J*``
+is not known there).
 The shipped library is :func:`shipped`; :func:`load_shipped` loads any shipped version.
 """
 
@@ -41,8 +43,9 @@ LIBRARY_VERSIONS = ("v1", "v2")
 """The shipped library versions, oldest first."""
 SHIPPED_VERSION = "v2"
 """The library version :func:`shipped` loads."""
-FORMAT_VERSION = 2
-"""Layout of the library files the build module writes (``v1`` is format 1)."""
+FORMAT_VERSION = 3
+"""Layout of the library files the build module writes (``v1`` is format 1; format 2 lacks
+``found_by_index``)."""
 
 PHASES = ("start-up", "transient", "steady")
 """Phases of a closed loop by the instant's time ``t = step * period_s``: ``start-up`` (step
@@ -87,7 +90,7 @@ V1_ARRAYS = (
     "step",
 )
 """The arrays of a format-1 library file (``v1``), one row per instance."""
-ARRAYS = (
+FORMAT2_ARRAYS = (
     *V1_ARRAYS,
     "neighbour_count",
     "centre_offset_sum",
@@ -102,7 +105,10 @@ ARRAYS = (
 ``desired_relative`` are padded with NaN to the largest neighbour count, ``centre_offset_sum``
 is NaN where ``has_centre_offset_sum`` is false, ``phase_index`` indexes :data:`PHASES` and
 ``split_index`` :data:`SPLITS`."""
-FORMAT_ARRAYS = {1: V1_ARRAYS, 2: ARRAYS}
+ARRAYS = (*FORMAT2_ARRAYS, "found_by_index")
+"""The arrays of a format-3 library file: format 2's and ``found_by_index``, which indexes the
+manifest's ``found_by_methods`` (the method of the search that found each ``J*``)."""
+FORMAT_ARRAYS = {1: V1_ARRAYS, 2: FORMAT2_ARRAYS, 3: ARRAYS}
 """The arrays of each file format."""
 
 
@@ -309,6 +315,10 @@ class Instance:
     :data:`WARM_START_OPTIMAL`: kept in the library, left out of the headline."""
     warm_cost: float
     """The compiled cost of the warm start."""
+    found_by: str = ""
+    """The method of the search for ``J*`` that found it (``"ipopt"``, ``"ipopt random
+    start"``, a population optimiser's name, any of them followed by ``" + ipopt polish"``, or
+    ``"warm start"``); ``""`` where the library does not record it (formats 1 and 2)."""
     centre_offset_sum: np.ndarray | None = None
     """The UAV's and its neighbours' desired offsets summed, ``(H, 2)``, when the centre is
     estimated from them alone (off the complete graph); None: eq. (14)'s centre."""
@@ -377,10 +387,14 @@ class Library:
 
     @cached_property
     def _columns(self) -> dict[str, np.ndarray]:
-        """The format-2 arrays: stored, or computed for a format-1 library."""
-        if self.format_version >= 2:
+        """The arrays of the current format: stored, or computed for an older one (no
+        ``found_by`` recorded: ``found_by_index`` -1)."""
+        if self.format_version >= 3:
             return self.arrays
-        return {**self.arrays, **_format1_columns(self)}
+        unknown = {"found_by_index": np.full(len(self), -1, dtype=np.int8)}
+        if self.format_version == 2:
+            return {**self.arrays, **unknown}
+        return {**self.arrays, **_format1_columns(self), **unknown}
 
     def _scenario_of(self, k: int) -> tuple[dict[str, Any], str]:
         entry = self.manifest["scenarios"][int(self.arrays["scenario_index"][k])]
@@ -394,6 +408,7 @@ class Library:
         entry, overrides = self._scenario_of(k)
         count = int(a["neighbour_count"][k])
         split = int(a["split_index"][k])
+        found_by = int(a["found_by_index"][k])
         return Instance(
             index=k,
             scenario_name=entry["name"],
@@ -416,6 +431,7 @@ class Library:
             split=SPLITS[split] if split >= 0 else "",
             degenerate=bool(a["degenerate"][k]),
             warm_cost=float(a["warm_cost"][k]),
+            found_by=self.manifest["found_by_methods"][found_by] if found_by >= 0 else "",
             centre_offset_sum=(
                 a["centre_offset_sum"][k] if bool(a["has_centre_offset_sum"][k]) else None
             ),
@@ -514,6 +530,13 @@ def load(folder: Path | str, version: str) -> Library:
     sizes = {name: len(array) for name, array in arrays.items()}
     if len(set(sizes.values())) != 1:
         raise LibraryError(f"{data}: arrays of different lengths {sizes}")
+    if "found_by_index" in arrays:
+        methods = len(manifest.get("found_by_methods", ()))
+        index = arrays["found_by_index"]
+        if index.size and not (index.min() >= -1 and index.max() < methods):
+            raise LibraryError(
+                f"{data}: found_by_index outside the manifest's {methods} found_by_methods"
+            )
     return Library(version, manifest, arrays)
 
 
