@@ -42,6 +42,7 @@ from formation_bench.pipeline.spec import solve_budget
 from formation_bench.pipeline.staging import (
     OutputError,
     check_output_folder,
+    confined,
     staged_folder,
     storage_advice,
     storage_problem,
@@ -54,7 +55,7 @@ def usage_errors() -> tuple[type[Exception], ...]:
     Parquet with pandas, so it is imported only when a command fails."""
     from formation_bench.analysis.ioh_export import ExportError
 
-    return (SuiteError, SweepError, StoreError, PluginError, LimitError, ExportError)
+    return (SuiteError, SweepError, StoreError, PluginError, LimitError, OutputError, ExportError)
 
 
 def _worker_timeout(text: str) -> float:
@@ -249,14 +250,14 @@ def cmd_report(args: argparse.Namespace) -> int:
             f"{results} holds no results (no runs/ or score/ folder); run a sweep or score "
             "into it first"
         )
-    if args.page is not None and (Path(args.page).is_dir() or Path(args.page).suffix != ".md"):
-        print(
-            f"formation-bench report: error: --page {args.page}: give a Markdown file (.md), "
-            "not a folder",
-            file=sys.stderr,
-        )
-        return 2
     folder = Path(args.out) if args.out is not None else results / "report"
+    if args.out is None:  # a folder chosen inside the one the user named
+        confined(results, folder, "DIR")
+    if args.page is not None:
+        # every output is checked before any is written
+        from formation_bench.analysis.results_page import check_page
+
+        check_page(Path(args.page), results, folder, overwrite=args.overwrite)
     written = []
     try:
         with staged_folder(folder, overwrite=args.overwrite) as staging:
@@ -310,6 +311,9 @@ def cmd_export_ioh(args: argparse.Namespace) -> int:
         raise StoreError(f"{results} holds no score runs (no score/ folder); run 'score' first")
     folder = Path(args.out) if args.out is not None else results / "ioh"
     archive = folder.with_name(folder.name + ".zip")
+    if args.out is None:  # folders chosen inside the one the user named
+        confined(results, folder, "DIR")
+        confined(results, archive, "DIR")
     if args.zip and archive.is_dir():
         raise ExportError(f"--zip: {archive} is a folder, not a file")
     if args.zip and archive.exists() and not args.overwrite:
