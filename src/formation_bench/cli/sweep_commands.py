@@ -532,13 +532,15 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         "--page",
         metavar="FILE",
         help="also write a dated Markdown results page (the commands that made the results and "
-        "this page, date, version, machine, the report's tables), keeping the findings written "
-        "into an existing page between its findings markers",
+        "this page, date, version, machine, the report's tables); a page it wrote earlier is "
+        "rewritten only with --overwrite, keeping the findings written into it between its "
+        "findings markers, and any other existing file is refused",
     )
     report.add_argument(
         "--overwrite",
         action="store_true",
-        help="replace an existing report folder (as a whole) instead of refusing",
+        help="replace an existing report folder (as a whole), and an existing --page written "
+        "by this command, instead of refusing",
     )
     report.add_argument(
         "--figures",

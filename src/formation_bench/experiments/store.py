@@ -53,8 +53,17 @@ The manifest is never reset silently.
 
 Files written before seals were kept carry none: resume redoes them (state
 ``unverified``), so a resumed folder ends fully sealed; the readers use them and say
-once, on stderr, how many were used unverified. A manifest with neither field is checked
-for its shape only, and gets its digest when the next sweep rewrites it.
+once, on stderr, how many were used unverified. A manifest with neither field is taken
+for one written before seals only when it says format 1 and no run beside it is sealed
+(:func:`~formation_bench.experiments.manifest.read_manifest`); it is then checked for its
+shape only, and gets its digest when the next sweep rewrites it. A stored duration below
+zero is damage too (:func:`read_checked`).
+
+The store owns only its own files (:data:`STORE_FILE`, the manifest, the lock and the
+temporaries of its writes, :data:`TEMPORARY`): nothing else in the folder is read,
+hashed or deleted. Every file or folder it writes or deletes goes through
+:meth:`ResultStore.inside`, which refuses a symbolic link inside the folder
+(:func:`~formation_bench.pipeline.staging.confined`).
 
 This module holds the folder's layout, its lock, the run and trace files and their readers;
 :mod:`~formation_bench.experiments.seal` makes and checks the seals and the
