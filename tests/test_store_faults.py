@@ -218,11 +218,16 @@ def _strip_seal(path: Path, **changes: object) -> dict:
     return manifest
 
 
-@pytest.mark.parametrize("form", ["current format", "format 1 beside sealed runs"])
+@pytest.mark.parametrize(
+    "form", ["current format", "current format beside unsealed runs", "format 1 beside sealed runs"]
+)
 def test_a_manifest_stripped_of_its_seal_is_damage_never_resealed(stored, tmp_path, capsys, form):
     suite, _ = stored
     out = copy_of(stored, tmp_path)
     manifest = out / "manifest.json"
+    if form == "current format beside unsealed runs":
+        for file in (out / "runs").glob("*.parquet"):
+            pq.write_table(pq.read_table(file), file)  # as written before seals
     invented = {"git": {"commit": "f" * 40, "dirty": False}, "versions": {"formation-bench": "9"}}
     if form == "format 1 beside sealed runs":
         invented["format"] = 1
