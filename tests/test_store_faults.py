@@ -303,12 +303,16 @@ def test_a_sweep_resumed_under_another_commit_says_the_folder_now_mixes_commits(
     assert f"{other[:10]} (2 runs)" in version and f"{earlier[:10]}" in version
 
 
-def test_results_pages_read_the_manifest_verified(stored, tmp_path):
+def test_results_pages_read_the_manifest_verified(stored, tmp_path, capsys):
     out = copy_of(stored, tmp_path)
     results = load_results(out)
     _strip_seal(out / "manifest.json", versions={"formation-bench": "invented"})
     with pytest.raises(manifest_module.ManifestError, match="has no seal"):
         suite_provenance(out, results)
+    page = tmp_path / "page.md"
+    assert main(["report", str(out), "--no-figures", "--page", str(page)]) == 2
+    assert "has no seal" in one_line(capsys.readouterr().err)
+    assert not page.exists() and not (out / "report").exists()  # stopped before any output
 
 
 # --- durations ---------------------------------------------------------------------------------

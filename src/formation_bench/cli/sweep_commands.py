@@ -258,6 +258,11 @@ def cmd_report(args: argparse.Namespace) -> int:
         from formation_bench.analysis.results_page import check_page
 
         check_page(Path(args.page), results, folder, overwrite=args.overwrite)
+        if has_runs:  # the page's provenance: a damaged manifest stops it before any output
+            from formation_bench.experiments.manifest import read_manifest
+            from formation_bench.experiments.store import ResultStore
+
+            read_manifest(ResultStore(results))
     written = []
     try:
         with staged_folder(folder, overwrite=args.overwrite) as staging:
