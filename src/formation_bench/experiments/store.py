@@ -447,7 +447,8 @@ def load_results(
 
     frames = intact_frames(
         [(store.run_path(key), key) for key in store.keys()], read,
-        redo=f"a sweep of its suite into {root}", redo_all=f"a sweep of their suite into {root}",
+        redo=f"a sweep of the suite holding the run into {root}",
+        redo_all=f"a sweep of their suite into {root}",
         folder=store.runs_dir, strict=strict, notice=notice,
     )  # fmt: skip
     if not frames:
@@ -486,7 +487,8 @@ def load_traces(
 
     frames = intact_frames(
         [(store.trace_path(key), key) for key in wanted], read,
-        redo=f"a sweep of its suite into {root}", redo_all=f"a sweep of their suite into {root}",
+        redo=f"a sweep of the suite holding the run into {root}",
+        redo_all=f"a sweep of their suite into {root}",
         folder=store.traces_dir, strict=strict, notice=notice,
     )  # fmt: skip
     if not frames and wanted:
