@@ -138,6 +138,18 @@ def test_a_sweep_never_writes_or_deletes_through_a_linked_store_folder(
     assert snapshot(out) == inside
 
 
+def test_a_linked_lock_file_is_not_created_through(stored, tmp_path, capsys):
+    suite, _ = stored
+    out = copy_of(stored, tmp_path)
+    target = elsewhere(tmp_path)
+    (out / ".lock").unlink()
+    (out / ".lock").symlink_to(target / "their.lock")  # opening it would create that file
+    before = snapshot(target)
+    assert main(["sweep", str(suite), "--out", str(out), "--no-progress"]) == 2
+    assert f"{out / '.lock'} is a symbolic link" in one_line(capsys.readouterr().err)
+    assert snapshot(target) == before
+
+
 def test_a_store_folder_swapped_for_a_link_mid_sweep_is_not_written_through(
     stored, tmp_path, monkeypatch, capsys
 ):
