@@ -374,20 +374,39 @@ def test_files_the_store_does_not_own_are_neither_read_nor_redone(stored, tmp_pa
 # --- a sweep stopped while two local workers compute --------------------------------------------
 
 
+@pytest.fixture
+def small_tmpfs(tmp_path):
+    """A real 64 KiB tmpfs (root only; skipped where it cannot be mounted)."""
+    mount_point = tmp_path / "mnt"
+    mount_point.mkdir()
+    if shutil.which("mount") is None or os.geteuid() != 0:
+        pytest.skip("needs root to mount a small file system")
+    made = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mount_point)], capture_output=True
+    )
+    if made.returncode != 0:
+        pytest.skip("cannot mount a small file system here")
+    yield mount_point
+    subprocess.run(["umount", "-l", str(mount_point)], check=True)
+
+
 @pytest.mark.slow
-def test_a_folder_deleted_under_two_local_workers_is_one_line(tmp_path):
+@pytest.mark.parametrize("fault", ["folder deleted", "disk full"])
+def test_a_sweep_stopped_under_two_local_workers_is_one_line(tmp_path, request, fault):
     suite = suite_file(tmp_path, seeds=12)
-    out = tmp_path / "out"
+    place = request.getfixturevalue("small_tmpfs") if fault == "disk full" else tmp_path
+    out = place / "out"
     proc = subprocess.Popen(
         [*COMMAND, "sweep", str(suite), "--out", str(out), "--no-progress", "--jobs", "2"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
-        deadline = time.monotonic() + DEADLINE_S
-        while len(list((out / "runs").glob("*.parquet"))) < 2:
-            assert proc.poll() is None and time.monotonic() < deadline
-            time.sleep(0.01)
-        shutil.rmtree(out)  # both workers are computing the next runs
+        if fault == "folder deleted":
+            deadline = time.monotonic() + DEADLINE_S
+            while len(list((out / "runs").glob("*.parquet"))) < 2:
+                assert proc.poll() is None and time.monotonic() < deadline
+                time.sleep(0.01)
+            shutil.rmtree(out)  # both workers are computing the next runs
         _, err = proc.communicate(timeout=DEADLINE_S)
     finally:
         proc.kill()
@@ -395,7 +414,8 @@ def test_a_folder_deleted_under_two_local_workers_is_one_line(tmp_path):
     assert proc.returncode == 2, err
     assert lines[0].startswith("suite store-faults: 24 runs")
     assert len(lines) == 2, err  # the one line, and no warning of joblib's before or after it
-    assert lines[1].startswith(f"formation-bench sweep: error: --out: {out} was deleted")
+    said = "was deleted" if fault == "folder deleted" else f"disk full writing {out}"
+    assert lines[1].startswith("formation-bench sweep: error: --out: ") and said in lines[1]
 
 
 # --- Dask: the scheduler lost, every worker lost -------------------------------------------------

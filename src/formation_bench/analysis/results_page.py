@@ -266,7 +266,11 @@ def check_page(page: Path, results_dir: Path, report_folder: Path, *, overwrite:
         raise refused("exists and is not a regular file")
     if not os.access(where, os.W_OK):
         raise refused("exists and is not writable (read-only or immutable)")
-    if not is_results_page(where):
+    try:
+        ours = is_results_page(where)
+    except OSError as err:
+        raise refused(f"exists and cannot be read ({err.strerror})") from None
+    if not ours:
         raise refused(
             "exists and is not a results page written by 'formation-bench report' (its first "
             "paragraph does not say so), so it is not overwritten; give another file"
