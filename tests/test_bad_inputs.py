@@ -263,6 +263,22 @@ MERGES = [
      "--compare scenario: these results hold one scenario"),
 ]  # fmt: skip
 CASES += BUDGETS + LABELS + MERGES
+# report --page: every output checked before any is written; a file of the user's never
+# overwritten; nothing inside the store or the report folder, which --overwrite replaces
+PAGE = [
+    (["report", "{results}", "--page", "{long_page}"], "--page: the name"),
+    (["report", "{results}", "--page", "{notes}"], "is not a results page written by"),
+    (["report", "{results}", "--page", "{notes}", "--overwrite"],
+     "is not a results page written by"),
+    (["report", "{results}", "--page", "{results_page}"], "add --overwrite to write it anew"),
+    (["report", "{results}", "--page", "{results}/runs/page.md"], "/runs, which belongs to"),
+    (["report", "{results}", "--page", "{results}/report/page.md"], "/report, which belongs to"),
+    (["report", "{results}", "--out", "{out}", "--page", "{out}/page.md"],
+     "/out, which belongs to"),
+    (["report", "{results}", "--page", "{file}/page.md"], "is a file, not a folder"),
+    (["report", "{results}", "--page", "{dir}/page.txt"], "give a Markdown file (.md)"),
+]  # fmt: skip
+CASES += PAGE
 
 PLAIN_PLUGIN = """
 from dataclasses import dataclass
@@ -410,6 +426,14 @@ def places(tmp_path: Path) -> dict[str, str]:
     )
     for name, text in SUITES.items():
         (tmp_path / f"{name}.toml").write_text(text)
+    notes = tmp_path / "notes.md"
+    notes.write_text("# My notes\n\nNot a page formation-bench wrote.\n")
+    results_page = tmp_path / "page.md"
+    results_page.write_text(
+        "# Results: suite x (2026-01-01)\n\nSuite `x`, made by `formation-bench sweep x --out "
+        "r`; this page is written by `formation-bench report r --page page.md` (on "
+        "2026-01-01).\n"
+    )
     plugins = {}
     for name, source in (("tutorial", tutorial_plugin_source()), ("plain", PLAIN_PLUGIN),
                          ("pso", PSO_AGAIN), ("zero", ZERO_PLUGIN)):  # fmt: skip
@@ -419,6 +443,9 @@ def places(tmp_path: Path) -> dict[str, str]:
         **plugins,
         **{name: str(tmp_path / f"{name}.toml") for name in SUITES},
         "long_name": str(tmp_path / ("a" * 300)),
+        "long_page": str(tmp_path / ("a" * 300 + ".md")),
+        "notes": str(notes),
+        "results_page": str(results_page),
         "long_path": str(tmp_path / "/".join(["abcdefghi"] * 500)),
         "no_optimizer_suite": str(no_optimizer_suite),
         "optional_suite": str(optional_suite),

@@ -2,7 +2,6 @@
 constant metrics on one line; and the dated results page with its produced-by comments."""
 
 import datetime as dt
-import json
 
 import numpy as np
 import pandas as pd
@@ -11,6 +10,8 @@ from formation_bench.analysis.cells import metric_column
 from formation_bench.analysis.comparison import analyse
 from formation_bench.analysis.report import to_markdown
 from formation_bench.analysis.results_page import mark_tables, page_text, suite_provenance
+from formation_bench.experiments.manifest import MANIFEST_FORMAT, write_manifest
+from formation_bench.experiments.store import ResultStore
 
 OPTIMIZERS = ("modified-bso", "de", "pso")
 
@@ -90,21 +91,24 @@ def test_the_shown_values_are_the_statistics_in_the_shown_unit():
 
 def test_the_page_names_its_commands_date_and_machine_and_marks_every_table(tmp_path):
     results = runs()
-    (tmp_path / "manifest.json").write_text(
-        json.dumps(
-            {
-                "sessions": [
-                    {
-                        "command": "/venv/bin/formation-bench sweep paper --out res",
-                        "started": "2026-03-01T10:00:00+00:00",
-                        "finished": "2026-03-02T09:00:00+00:00",
-                    }
-                ],
-                "versions": {"formation-bench": "1.2.3"},
-                "machine": {"cpu_model": "Test CPU", "cpu_count": 4},
-                "suite": {"name": "paper"},
-            }
-        )
+    write_manifest(
+        ResultStore(tmp_path),
+        {
+            "format": MANIFEST_FORMAT,
+            "created": "2026-03-01T10:00:00+00:00",
+            "updated": "2026-03-02T09:00:00+00:00",
+            "sessions": [
+                {
+                    "state": "done",
+                    "command": "/venv/bin/formation-bench sweep paper --out res",
+                    "started": "2026-03-01T10:00:00+00:00",
+                    "finished": "2026-03-02T09:00:00+00:00",
+                }
+            ],
+            "versions": {"formation-bench": "1.2.3"},
+            "machine": {"cpu_model": "Test CPU", "cpu_count": 4},
+            "suite": {"name": "paper", "sha256": "0" * 64},
+        },
     )
     provenance = suite_provenance(tmp_path, results)
     assert provenance.commands == ("formation-bench sweep paper --out res",)

@@ -365,19 +365,6 @@ def test_rebuilding_refuses_an_intact_manifest_and_runs_of_another_suite(stored,
     assert not (out / "manifest.json").exists()
 
 
-def test_a_manifest_from_before_checksums_is_shape_checked_then_sealed(stored, tmp_path):
-    path, *_ = stored
-    out = copy_of(stored, tmp_path)
-    manifest = json.loads((out / "manifest.json").read_text())
-    del manifest["manifest_seal"], manifest["manifest_sha256"]
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
-    assert read_manifest(ResultStore(out)) == manifest
-    assert sweep(path, out).already == RUNS
-    sealed = json.loads((out / "manifest.json").read_text())
-    assert next(iter(sealed)) == "manifest_seal" and list(sealed)[-1] == "manifest_sha256"
-    assert [s["state"] for s in read_manifest(ResultStore(out))["sessions"]] == ["done", "done"]
-
-
 def test_a_manifest_with_a_newer_field_is_accepted_and_a_fresh_folder_has_none(tmp_path):
     store = ResultStore(tmp_path / "new")
     assert read_manifest(store) is None

@@ -16,12 +16,16 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import os
 import shlex
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pandas as pd
+
+from formation_bench.pipeline.outputs import write_text
+from formation_bench.pipeline.provenance import uncommitted
 
 if TYPE_CHECKING:
     from formation_bench.analysis.comparison import Report
@@ -72,11 +76,15 @@ def _shown_command(command: str) -> str:
 
 def suite_provenance(results_dir: Path, results: pd.DataFrame) -> Provenance:
     """A suite folder's provenance: its manifest's sessions (commands, dates, machine,
-    versions), else what its run records hold."""
-    try:
-        manifest = json.loads((results_dir / "manifest.json").read_text())
-    except (OSError, ValueError):
-        manifest = {}
+    versions), else what its run records hold.
+
+    The manifest is read verified (:func:`~formation_bench.experiments.manifest.read_manifest`):
+    a damaged one raises its one-line :class:`~formation_bench.experiments.errors.ManifestError`
+    rather than lending the page invented provenance."""
+    from formation_bench.experiments.manifest import read_manifest
+    from formation_bench.experiments.store import ResultStore
+
+    manifest = read_manifest(ResultStore(results_dir)) or {}
     sessions = manifest.get("sessions") or []
     commands = tuple(
         dict.fromkeys(_shown_command(s["command"]) for s in sessions if "command" in s)
@@ -87,8 +95,8 @@ def suite_provenance(results_dir: Path, results: pd.DataFrame) -> Provenance:
     version = (manifest.get("versions") or {}).get("formation-bench")
     if version is None and "version" in results:
         version = _distinct(results, "version")
-    if version is not None and _distinct(results, "commit"):
-        version = f"{version} (commit {_distinct(results, 'commit', width=10)})"
+    if version is not None:
+        version = f"{version}{commit_text(results)}"
     machine_info = manifest.get("machine") or {}
     cpu = machine_info.get("cpu_model")
     if cpu is None and "cpu_model" in results:
@@ -141,6 +149,31 @@ def _distinct(rows: pd.DataFrame, column: str, width: int | None = None) -> str:
     return ", ".join(sorted(values))
 
 
+COMMIT_WIDTH = 10
+"""Hex digits of a commit a page prints."""
+
+
+def commit_text(rows: pd.DataFrame) -> str:
+    """`` (commit abc)`` for rows made at one commit; for rows of several, a sentence saying
+    the folder mixes them, with each commit's rows counted and the ones made from a tree
+    with uncommitted changes named so ("" when no row recorded its commit)."""
+    if "commit" not in rows or rows["commit"].dropna().empty:
+        return ""
+    made = rows.dropna(subset=["commit"])
+    commits = made["commit"].astype(str).str[:COMMIT_WIDTH]
+    if commits.nunique() == 1:
+        return f" (commit {commits.iloc[0]})"
+    versions = made["version"].astype(str) if "version" in made else None
+    parts = []
+    for commit, count in commits.value_counts().sort_index().items():
+        changed = versions is not None and any(map(uncommitted, versions[commits == commit]))
+        parts.append(f"{commit}{' with uncommitted changes' if changed else ''} ({count} runs)")
+    return (
+        f"; the runs were made at {len(parts)} different commits, so this folder mixes code "
+        f"versions: {', '.join(parts)}"
+    )
+
+
 def score_provenance(results_dir: Path, scores: pd.DataFrame) -> Provenance:
     """A score folder's provenance: its commands rebuilt from the rows, and the dates,
     version, commit and machine its rows record (the files' dates, for rows stored before
@@ -152,8 +185,7 @@ def score_provenance(results_dir: Path, scores: pd.DataFrame) -> Provenance:
         files = list((results_dir / "score").glob("*.parquet"))
         days = [dt.date.fromtimestamp(f.stat().st_mtime).isoformat() for f in files]
     version = _distinct(scores, "version") or "not recorded by these score runs"
-    if _distinct(scores, "commit"):
-        version += f" (commit {_distinct(scores, 'commit', width=10)})"
+    version += commit_text(scores)
     return Provenance(
         "score",
         f"leaderboard on library {library}",
@@ -188,6 +220,72 @@ def report_command(results_dir: Path | str, page: Path | str, options: list[str]
     return shlex.join(
         ["formation-bench", "report", str(results_dir), *options, "--page", str(page)]
     )
+
+
+WRITTEN_BY = "this page is written by `"
+"""What the first paragraph of every page this module writes says before the command that
+writes it (:func:`report_command`): how a page it wrote is told from a file of the user's,
+which ``--page`` never overwrites."""
+PAGE_HEAD = 4096
+"""Bytes of an existing file read to tell whether it is such a page (the paragraph is near
+its top)."""
+
+
+def check_page(page: Path, results_dir: Path, report_folder: Path, *, overwrite: bool) -> None:
+    """Refuse a ``--page`` that cannot or must not be written, before anything is: not a
+    Markdown file, inside the results folder's store or the report folder (which
+    ``--overwrite`` replaces as a whole), in a folder that is not writable (read-only or
+    immutable), or an existing file that is not a page this command wrote, or is one and
+    ``--overwrite`` is not given."""
+    from formation_bench.experiments.store import RUNS, SCORE, TRACES
+    from formation_bench.pipeline.staging import OutputError
+
+    def refused(reason: str) -> OutputError:
+        return OutputError(f"--page {page}: {reason}")
+
+    if page.suffix != ".md" or page.is_dir():
+        raise refused("give a Markdown file (.md), not a folder")
+    where = Path(os.path.realpath(page))
+    owned = [Path(os.path.realpath(results_dir / name)) for name in (RUNS, TRACES, SCORE)]
+    for folder in (*owned, Path(os.path.realpath(report_folder))):
+        if where.is_relative_to(folder):
+            raise refused(
+                f"is inside {folder}, which belongs to the results folder's store or to the "
+                "report folder (replaced as a whole by --overwrite); give a file outside them"
+            )
+    ancestor = where.parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise refused(f"{ancestor} is a file, not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise refused(f"{ancestor} is not writable (read-only or immutable)")
+    if not os.path.lexists(page):
+        return
+    if not where.is_file():
+        raise refused("exists and is not a regular file")
+    if not os.access(where, os.W_OK):
+        raise refused("exists and is not writable (read-only or immutable)")
+    try:
+        ours = is_results_page(where)
+    except OSError as err:
+        raise refused(f"exists and cannot be read ({err.strerror})") from None
+    if not ours:
+        raise refused(
+            "exists and is not a results page written by 'formation-bench report' (its first "
+            "paragraph does not say so), so it is not overwritten; give another file"
+        )
+    if not overwrite:
+        raise refused(
+            "exists; add --overwrite to write it anew (the findings between its markers are kept)"
+        )
+
+
+def is_results_page(path: Path) -> bool:
+    """Whether the file ``path`` is a page :func:`write_results_page` wrote."""
+    with open(path, "rb") as handle:
+        head = handle.read(PAGE_HEAD).decode("utf-8", errors="replace")
+    return head.startswith("# Results: ") and f"{WRITTEN_BY}formation-bench report " in head
 
 
 FINDINGS_START = "<!-- findings: kept when the page is regenerated -->"
@@ -231,7 +329,7 @@ def page_text(
     kind = "Score runs" if provenance.kind == "score" else f"Suite `{provenance.name}`"
     title = provenance.name if provenance.kind == "score" else f"suite {provenance.name}"
     intro = (
-        f"{kind}, made by {made_by}; this page is written by `{command}` (on "
+        f"{kind}, made by {made_by}; {WRITTEN_BY}{command}` (on "
         f"{today.isoformat()}). Runs dated {dates}; formation-bench {provenance.version}; "
         f"machine: {provenance.machine}."
     )
@@ -290,11 +388,7 @@ def write_results_page(
     text = page_text(
         provenance, "\n".join(parts), command, today=today, findings=kept_findings(page)
     )
-    page.parent.mkdir(parents=True, exist_ok=True)
-    # written beside the page and renamed over it, so a page is never left half-written
-    partial = page.with_name(f".{page.name}.partial")
-    partial.write_text(text)
-    partial.replace(page)
+    write_text(page, text)  # written beside it and renamed over it: never left half-written
     return page
 
 

@@ -618,6 +618,8 @@ def _check_arguments(args: argparse.Namespace) -> None:
             check_out_path(out, staged=args.command in STAGED_OUTPUT_COMMANDS)
         if getattr(args, "results", None) is not None:
             check_out_path(args.results, "DIR", staged=False)
+        if getattr(args, "page", None) is not None:
+            check_out_path(args.page, "--page", staged=False)
         if args.command in ("reproduce", "score"):
             check_seed_count(len(set(args.seeds)))
             _check_distinct("--seeds", args.seeds)

@@ -44,6 +44,7 @@ from formation_bench.pipeline.spec import solve_budget
 from formation_bench.pipeline.staging import (
     OutputError,
     check_output_folder,
+    confined,
     staged_folder,
     storage_advice,
     storage_problem,
@@ -56,7 +57,7 @@ def usage_errors() -> tuple[type[Exception], ...]:
     Parquet with pandas, so it is imported only when a command fails."""
     from formation_bench.analysis.ioh_export import ExportError
 
-    return (SuiteError, SweepError, StoreError, PluginError, LimitError, ExportError)
+    return (SuiteError, SweepError, StoreError, PluginError, LimitError, OutputError, ExportError)
 
 
 def _worker_timeout(text: str) -> float:
@@ -253,14 +254,19 @@ def cmd_report(args: argparse.Namespace) -> int:
             f"{results} holds no results (no runs/ or score/ folder); run a sweep or score "
             "into it first"
         )
-    if args.page is not None and (Path(args.page).is_dir() or Path(args.page).suffix != ".md"):
-        print(
-            f"formation-bench report: error: --page {args.page}: give a Markdown file (.md), "
-            "not a folder",
-            file=sys.stderr,
-        )
-        return 2
     folder = Path(args.out) if args.out is not None else results / "report"
+    if args.out is None:  # a folder chosen inside the one the user named
+        confined(results, folder, "DIR")
+    if args.page is not None:
+        # every output is checked before any is written
+        from formation_bench.analysis.results_page import check_page
+
+        check_page(Path(args.page), results, folder, overwrite=args.overwrite)
+        if has_runs:  # the page's provenance: a damaged manifest stops it before any output
+            from formation_bench.experiments.manifest import read_manifest
+            from formation_bench.experiments.store import ResultStore
+
+            read_manifest(ResultStore(results))
     written = []
     try:
         with staged_folder(folder, overwrite=args.overwrite) as staging:
@@ -314,6 +320,9 @@ def cmd_export_ioh(args: argparse.Namespace) -> int:
         raise StoreError(f"{results} holds no score runs (no score/ folder); run 'score' first")
     folder = Path(args.out) if args.out is not None else results / "ioh"
     archive = folder.with_name(folder.name + ".zip")
+    if args.out is None:  # folders chosen inside the one the user named
+        confined(results, folder, "DIR")
+        confined(results, archive, "DIR")
     if args.zip and archive.is_dir():
         raise ExportError(f"--zip: {archive} is a folder, not a file")
     if args.zip and archive.exists() and not args.overwrite:
@@ -532,13 +541,15 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         "--page",
         metavar="FILE",
         help="also write a dated Markdown results page (the commands that made the results and "
-        "this page, date, version, machine, the report's tables), keeping the findings written "
-        "into an existing page between its findings markers",
+        "this page, date, version, machine, the report's tables); a page it wrote earlier is "
+        "rewritten only with --overwrite, keeping the findings written into it between its "
+        "findings markers, and any other existing file is refused",
     )
     report.add_argument(
         "--overwrite",
         action="store_true",
-        help="replace an existing report folder (as a whole) instead of refusing",
+        help="replace an existing report folder (as a whole), and an existing --page written "
+        "by this command, instead of refusing",
     )
     report.add_argument(
         "--figures",

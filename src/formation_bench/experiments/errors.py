@@ -22,6 +22,11 @@ class ManifestError(StoreError):
     """``manifest.json`` is damaged, or missing beside stored runs."""
 
 
+class ManifestUnreadable(StoreError):
+    """``manifest.json`` could not be read (an I/O error, not damage: rebuilding it would
+    throw away a manifest that may be intact)."""
+
+
 class SweepError(RuntimeError):
     """A sweep that cannot start or go on as asked (reported in one line, exit 2)."""
 

@@ -13,6 +13,7 @@ alike.
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import socket
@@ -25,7 +26,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
 from formation_bench.experiments.errors import SweepError, SweepStopped
-from formation_bench.pipeline.interrupts import is_interrupt, started_deaf_to_interrupts
+from formation_bench.pipeline.interrupts import (
+    interrupts_deferred,
+    is_interrupt,
+    started_deaf_to_interrupts,
+)
 from formation_bench.pipeline.runner import execute
 from formation_bench.pipeline.spec import RunSpec
 
@@ -109,8 +114,10 @@ def execute_run(spec: RunSpec) -> RunResult:
 
 TRACKER_CLEAN_UP_WARNING = "ignore:resource_tracker:UserWarning"
 """``-W`` option of loky's resource tracker: its reports of what it cleans up."""
-DROPPED_RESULTS_WARNING = r"\d+ tasks have been successfully executed"
-"""joblib's warning about finished tasks it drops when a sweep stops early."""
+DROPPED_RESULTS_WARNING = r"\d+ tasks (?:have been successfully executed|which were still being)"
+"""joblib's warning about the tasks it drops when a sweep stops early: finished but not handed
+back, or still running and cancelled (a sweep stopped by a full disk or a folder taken away
+while both workers compute)."""
 
 
 def run_locally(
@@ -124,10 +131,11 @@ def run_locally(
         return
     from joblib import Parallel, delayed, parallel_config
 
-    # After a Ctrl-C, joblib warns that it drops the runs its workers finished but had not
-    # handed back (the next sweep redoes them), and loky's resource tracker, a process of its
-    # own that outlives the command, reports the semaphores of the killed workers it then
-    # removes: both would follow the command's one line. The tracker takes its warning
+    # After a Ctrl-C or a stop, joblib warns that it drops the runs its workers finished but
+    # had not handed back or were still computing (the next sweep redoes them), and loky's
+    # resource tracker, a process of its own that outlives the command, reports the
+    # semaphores of the killed workers it then removes: both would follow the command's one
+    # line. The tracker takes its warning
     # options from this process's.
     if TRACKER_CLEAN_UP_WARNING not in sys.warnoptions:
         sys.warnoptions.append(TRACKER_CLEAN_UP_WARNING)
@@ -211,17 +219,57 @@ def _live_workers(client: Client) -> int:
     return len(client.scheduler_info().get("workers", {}))
 
 
+def _connected(client: Client) -> bool:
+    """Whether the client is connected to its scheduler (not reconnecting, not given up)."""
+    return client.status == "running"
+
+
+def _scheduler_lost(client: Client) -> SweepStopped:
+    return SweepStopped(
+        f"lost the connection to the Dask scheduler at {client.scheduler.address}",
+        "start the scheduler and its workers again and run the same command to finish",
+        option="--scheduler",
+    )
+
+
+def close_client(client: Client) -> None:
+    """Close ``client``, letting no Ctrl-C cut it short.
+
+    A client that lost its scheduler is still trying to reconnect: closing it stops that,
+    and the client logs the stop (an error line, or the traceback of its cancelled attempt)
+    on stderr. The sweep has said in its one line that the scheduler was lost, so the
+    client's log is silenced while it closes.
+    """
+    client_log = logging.getLogger("distributed.client")
+    silenced = not _connected(client) and client.status != "closed"
+    if silenced:
+        client_log.disabled = True
+    try:
+        with interrupts_deferred():
+            client.close()
+    finally:
+        if silenced:
+            client_log.disabled = False
+
+
+def _to_stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
 def run_on_dask(
     specs: Sequence[Keyed],
     client: Client,
     worker_timeout_s: float = DEFAULT_WORKER_TIMEOUT_S,
     work: Work = execute_run,
+    notice: Callable[[str], None] = _to_stderr,
 ) -> Generator[RunResult, None, None]:
     """Results of ``work`` on every run of ``specs``, in completion order, from the Dask
     cluster of ``client``.
 
     Raises :class:`SweepStopped` when the scheduler has had no worker for
-    ``worker_timeout_s``: the runs finished until then are all yielded first.
+    ``worker_timeout_s`` (saying so through ``notice`` when it starts waiting), or when the
+    connection to the scheduler is lost for good: the runs finished until then are all
+    yielded first, and the runs still out are left for the next sweep, not reported failed.
     """
     from dask.distributed import as_completed
 
@@ -232,6 +280,7 @@ def run_on_dask(
     remaining = set(futures)
     check_s = min(WORKER_CHECK_S, worker_timeout_s / 4)
     worker_seen = time.monotonic()
+    waiting = False
     try:
         while remaining:
             try:
@@ -243,14 +292,23 @@ def run_on_dask(
                     try:
                         result = future.result()
                     except Exception:  # the worker died (KilledWorker) or the task was lost
+                        if not _connected(client):  # ... or the scheduler is gone
+                            raise _scheduler_lost(client) from None
                         error = traceback.format_exc()
                         result = RunResult(spec_of[future.key].key, None, error=error)
                     future.release()
                     yield result
             except TimeoutError:
                 pass
+            if not _connected(client):
+                if client.status in ("closing", "closed"):
+                    raise _scheduler_lost(client)
+                continue  # reconnecting: the client gives up after its own timeout
             if _live_workers(client):
                 worker_seen = time.monotonic()
+                if waiting:
+                    notice(f"note: a Dask worker is live again at {client.scheduler.address}")
+                waiting = False
             elif time.monotonic() - worker_seen >= worker_timeout_s:
                 raise SweepStopped(
                     f"no live Dask worker at {client.scheduler.address} for "
@@ -258,6 +316,13 @@ def run_on_dask(
                     "start workers and run the same command again",
                     option="--scheduler",
                 )
+            elif not waiting:
+                waiting = True
+                notice(
+                    f"note: no live Dask worker at {client.scheduler.address}; waiting up to "
+                    f"{worker_timeout_s:g} s (--worker-timeout) for one, the finished runs "
+                    "stored"
+                )
     finally:
-        if remaining:
+        if remaining and _connected(client):
             client.cancel(list(remaining))

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 from formation_bench.experiments.errors import (
     IntegrityError,
     ManifestError,
+    ManifestUnreadable,
     StoreError,
     SweepError,
 )
@@ -22,6 +23,7 @@ from formation_bench.experiments.seal import (
     MANIFEST_DIGEST,
     MANIFEST_SEAL,
     manifest_digest_matches,
+    read_sealed,
     read_table,
     sealed_manifest,
 )
@@ -32,7 +34,10 @@ from formation_bench.pipeline.provenance import git_info, machine_info, now, pac
 if TYPE_CHECKING:
     from formation_bench.experiments.suite import Suite
 
-MANIFEST_FORMAT = 1
+MANIFEST_FORMAT = 2
+"""2: always sealed (format 1 was written both before and after seals were kept)."""
+SEALED_FORMAT = 2
+"""The first format every manifest of which carries its seal: one without is damaged."""
 
 _MANIFEST_FIELDS: dict[str, type | tuple[type, ...]] = {
     "format": int,
@@ -66,7 +71,10 @@ def read_manifest(store: ResultStore, suite: Suite | None = None) -> dict[str, A
     try:
         data = path.read_bytes()
     except OSError as err:
-        raise damaged(f"cannot be read ({err.strerror})") from None
+        raise ManifestUnreadable(
+            f"{path} could not be read ({err.strerror or type(err).__name__}); nothing was "
+            "changed; make it readable (it may be intact) and run the same command again"
+        ) from None
     if not data.strip():
         raise damaged("is empty")
     try:
@@ -79,19 +87,43 @@ def read_manifest(store: ResultStore, suite: Suite | None = None) -> dict[str, A
         raise damaged(f"is not valid JSON ({err.msg} at line {err.lineno})") from None
     if not isinstance(manifest, dict):
         raise damaged(f"holds a JSON {type(manifest).__name__}, not an object")
-    if MANIFEST_SEAL in manifest or MANIFEST_DIGEST in manifest:
+    sealed = MANIFEST_SEAL in manifest or MANIFEST_DIGEST in manifest
+    if sealed:
         manifest.pop(MANIFEST_SEAL, None)
         if not manifest_digest_matches(data, manifest.pop(MANIFEST_DIGEST, None)):
             raise damaged("fails its SHA-256 checksum: it changed after it was written")
-    problem = _manifest_shape_problem(manifest)
+    problem = _manifest_shape_problem(manifest) or (
+        "" if sealed else _unsealed_problem(manifest, store)
+    )
     if problem:
         raise damaged(problem)
     return manifest
 
 
+def _unsealed_problem(manifest: dict[str, Any], store: ResultStore) -> str:
+    """Why a manifest without its seal cannot be one written before seals were kept ('' when
+    it can): every manifest of :data:`SEALED_FORMAT` on is sealed, and every sweep that
+    stored a sealed run wrote a sealed manifest, so a seal missing there was taken away (and
+    taking the manifest as it is would let the next sweep seal whatever was edited)."""
+    lost = f"has no seal ({MANIFEST_SEAL}, {MANIFEST_DIGEST})"
+    if manifest["format"] >= SEALED_FORMAT:
+        return f"{lost}, which every manifest of format {SEALED_FORMAT} on carries"
+    for key in store.keys():
+        try:
+            _, seal = read_sealed(store.run_path(key), "run", key)
+        except IntegrityError:
+            continue
+        if seal is not None:
+            return (
+                f"{lost}, while {store.runs_dir} holds runs stored sealed (every sweep that "
+                "stores them seals its manifest)"
+            )
+    return ""
+
+
 def write_manifest(store: ResultStore, manifest: dict[str, Any]) -> None:
     """Write ``store``'s ``manifest.json`` atomically, its digest last."""
-    atomic_write_bytes(store.manifest_path, sealed_manifest(manifest))
+    atomic_write_bytes(store.inside(store.manifest_path), sealed_manifest(manifest))
 
 
 def _manifest_shape_problem(manifest: dict[str, Any]) -> str:
@@ -110,6 +142,13 @@ def _manifest_shape_problem(manifest: dict[str, Any]) -> str:
             return f"has {field!r} that is not a list of objects"
     if not all(isinstance(s.get("state"), str) for s in manifest["sessions"]):
         return "has a session without a text 'state'"
+    for session in manifest["sessions"]:
+        wall = session.get("wall_s")
+        if isinstance(wall, int | float) and not isinstance(wall, bool) and wall < 0:
+            return (
+                f"has a session with a negative duration wall_s={wall:g} s (durations come "
+                "from a monotonic clock)"
+            )
     return ""
 
 
@@ -161,6 +200,29 @@ def session_entry(jobs: int, scheduler: str | None) -> dict[str, Any]:
     }
 
 
+def mixed_commits(manifest: dict[str, Any] | None, session: dict[str, Any], stored: int) -> str:
+    """The notice (one line) for a sweep whose ``session`` runs other code than the earlier
+    sessions that stored the folder's ``stored`` runs ("" when it runs the same commit, or
+    there is nothing stored to mix with)."""
+    if manifest is None or not stored:
+        return ""
+    here = (session.get("git") or {}).get("commit")
+    earlier = {
+        (s.get("git") or {}).get("commit")
+        for s in manifest.get("sessions", [])
+        if isinstance(s.get("git"), dict)
+    } - {None}
+    if here is None or not earlier or earlier == {here}:
+        return ""
+    dirty = " (with uncommitted changes)" if (session.get("git") or {}).get("dirty") else ""
+    return (
+        f"note: the {stored} runs stored in this folder were made at commit "
+        f"{', '.join(sorted(c[:10] for c in earlier - {here}))}; this sweep runs commit "
+        f"{here[:10]}{dirty}, so the folder now mixes code versions (each run records its own "
+        "commit; the report's results page lists them)"
+    )
+
+
 def updated_manifest(
     manifest: dict[str, Any] | None, suite: Suite, total: int, session: dict[str, Any]
 ) -> dict[str, Any]:
@@ -179,6 +241,7 @@ def updated_manifest(
     if previous and previous.get("sha256") != suite.sha256:
         manifest.setdefault("previous_suites", []).append(previous)
     manifest["suite"] = suite_info
+    manifest["format"] = MANIFEST_FORMAT  # written sealed from now on, whatever it was read as
     manifest["updated"] = session["started"]
     for key in ("versions", "git", "machine"):
         manifest[key] = session[key]
@@ -249,7 +312,8 @@ def rebuild_manifest(suite: Suite, root: Path | str) -> str:
         manifest["created"] = min(str(row["finished_at"]) for row in rows)
         kept = ""
         if store.manifest_path.exists():
-            store.manifest_path.replace(store.manifest_path.with_name(MANIFEST + ".damaged"))
+            kept_as = store.inside(store.manifest_path.with_name(MANIFEST + ".damaged"))
+            store.inside(store.manifest_path).replace(kept_as)
             kept = f"; the damaged one is kept as {MANIFEST}.damaged"
         write_manifest(store, manifest)
     return (

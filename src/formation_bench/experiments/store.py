@@ -53,8 +53,17 @@ The manifest is never reset silently.
 
 Files written before seals were kept carry none: resume redoes them (state
 ``unverified``), so a resumed folder ends fully sealed; the readers use them and say
-once, on stderr, how many were used unverified. A manifest with neither field is checked
-for its shape only, and gets its digest when the next sweep rewrites it.
+once, on stderr, how many were used unverified. A manifest with neither field is taken
+for one written before seals only when it says format 1 and no run beside it is sealed
+(:func:`~formation_bench.experiments.manifest.read_manifest`); it is then checked for its
+shape only, and gets its digest when the next sweep rewrites it. A stored duration below
+zero is damage too (:func:`read_checked`).
+
+The store owns only its own files (:data:`STORE_FILE`, the manifest, the lock and the
+temporaries of its writes, :data:`TEMPORARY`): nothing else in the folder is read,
+hashed or deleted. Every file or folder it writes or deletes goes through
+:meth:`ResultStore.inside`, which refuses a symbolic link inside the folder
+(:func:`~formation_bench.pipeline.staging.confined`).
 
 This module holds the folder's layout, its lock, the run and trace files and their readers;
 :mod:`~formation_bench.experiments.seal` makes and checks the seals and the
@@ -72,6 +81,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import re
 import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -80,6 +90,7 @@ from typing import Any
 
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from formation_bench.experiments.errors import IntegrityError, StoreBusy, StoreError
 from formation_bench.experiments.seal import (
@@ -89,7 +100,13 @@ from formation_bench.experiments.seal import (
     sealed_parquet,
 )
 from formation_bench.pipeline.outputs import atomic_write_bytes
-from formation_bench.pipeline.record import SAME_MEANING_FORMATS, record_columns, value_type
+from formation_bench.pipeline.record import (
+    SAME_MEANING_FORMATS,
+    duration_columns,
+    record_columns,
+    value_type,
+)
+from formation_bench.pipeline.staging import confined
 
 MANIFEST = "manifest.json"
 RUNS = "runs"
@@ -97,6 +114,13 @@ TRACES = "traces"
 SCORE = "score"
 """Subfolder of a results folder that holds score runs."""
 LOCK = ".lock"
+STORE_FILE = re.compile(r"[0-9a-f]{24}\.parquet")
+"""Names of the files the store owns in ``runs/``, ``traces/`` and ``score/``: a run key
+(24 hex digits, :attr:`~formation_bench.pipeline.spec.Identified.key`) and ``.parquet``.
+Any other file there is not the store's: no reader opens it and no sweep touches it."""
+TEMPORARY = re.compile(r"\.(?:[0-9a-f]{24}\.parquet|manifest\.json)\.[^.]+\.tmp")
+"""Names of the temporary files an interrupted write of the store's own files leaves
+(:func:`~formation_bench.pipeline.outputs.atomic_write_bytes`)."""
 
 
 # --- notices of the readers --------------------------------------------------------------------
@@ -209,11 +233,24 @@ class ResultStore:
     def manifest_path(self) -> Path:
         return self.root / MANIFEST
 
+    def inside(self, path: Path) -> Path:
+        """``path``, a file or folder the store writes or deletes, checked to reach no
+        place outside the folder through a symbolic link
+        (:func:`~formation_bench.pipeline.staging.confined`)."""
+        return confined(self.root, path)
+
+    def check_links(self) -> None:
+        """Refuse a folder whose own subfolders or files are links out of it, before
+        anything is written into it."""
+        for path in (self.runs_dir, self.traces_dir, self.score_dir, self.manifest_path,
+                     self.root / LOCK):  # fmt: skip
+            self.inside(path)
+
     # writing --------------------------------------------------------------------------------------
 
     def create(self) -> None:
-        self.runs_dir.mkdir(parents=True, exist_ok=True)
-        self.traces_dir.mkdir(parents=True, exist_ok=True)
+        self.inside(self.runs_dir).mkdir(parents=True, exist_ok=True)
+        self.inside(self.traces_dir).mkdir(parents=True, exist_ok=True)
 
     @contextlib.contextmanager
     def lock(self) -> Iterator[None]:
@@ -222,6 +259,7 @@ class ResultStore:
 
         The kernel drops the lock when the process dies, even by SIGKILL.
         """
+        self.check_links()
         self.root.mkdir(parents=True, exist_ok=True)
         with open(self.root / LOCK, "a+") as handle:
             try:
@@ -240,10 +278,11 @@ class ResultStore:
         """Delete temporary files left by an interrupted write (call while holding the lock)."""
         removed = 0
         for folder in (self.runs_dir, self.traces_dir, self.score_dir, self.root):
-            if folder.is_dir():
+            if self.inside(folder).is_dir():
                 for path in folder.glob(".*.tmp"):
-                    path.unlink(missing_ok=True)
-                    removed += 1
+                    if TEMPORARY.fullmatch(path.name):
+                        self.inside(path).unlink(missing_ok=True)
+                        removed += 1
         return removed
 
     def write_run(self, key: str, row: dict[str, Any], trace: pd.DataFrame | None) -> None:
@@ -252,18 +291,18 @@ class ResultStore:
         trace_digest = None
         if trace is not None:
             data, trace_digest = sealed_parquet(pa.Table.from_pandas(trace), "trace", key)
-            atomic_write_bytes(self.trace_path(key), data)
+            atomic_write_bytes(self.inside(self.trace_path(key)), data)
         table = pa.Table.from_pylist([row])
         for k, column in enumerate(table.schema):
             if pa.types.is_null(column.type):  # all-None column: give it a real type
                 kind = _ARROW_TYPES.get(value_type(column.name), pa.float64())
                 table = table.set_column(k, column.name, table.column(k).cast(kind))
         data, _ = sealed_parquet(table, "run", key, trace=trace_digest)
-        atomic_write_bytes(self.run_path(key), data)
+        atomic_write_bytes(self.inside(self.run_path(key)), data)
 
     def write_score(self, key: str, rows: pd.DataFrame) -> Path:
         """Store a finished score run, its rows in one file, atomically and sealed."""
-        path = self.score_path(key)
+        path = self.inside(self.score_path(key))
         data, _ = sealed_parquet(pa.Table.from_pandas(rows, preserve_index=False), "score", key)
         atomic_write_bytes(path, data)
         return path
@@ -276,7 +315,7 @@ class ResultStore:
         if not path.exists():
             return RunStatus("missing")
         try:
-            table, seal = read_table(path, "run", key)
+            table, seal = read_checked(path, "run", key)
         except IntegrityError as err:
             return RunStatus("corrupt", str(err))
         if table.num_rows != 1:
@@ -313,7 +352,9 @@ class ResultStore:
         if not path.exists():
             return RunStatus("missing")
         try:
-            table, seal = read_table(path, "score", key, ["run_key", format_column, "config_hash"])
+            table, seal = read_checked(
+                path, "score", key, ["run_key", format_column, "config_hash", *duration_columns()]
+            )
         except IntegrityError as err:
             return RunStatus("corrupt", str(err))
         stale = stale_reason(
@@ -338,7 +379,32 @@ class ResultStore:
 
 
 def _stems(folder: Path) -> list[str]:
-    return sorted(p.stem for p in folder.glob("*.parquet")) if folder.is_dir() else []
+    """The keys of the store's own files in ``folder`` (:data:`STORE_FILE`)."""
+    if not folder.is_dir():
+        return []
+    return sorted(p.stem for p in folder.glob("*.parquet") if STORE_FILE.fullmatch(p.name))
+
+
+def read_checked(
+    path: Path, kind: str, key: str, columns: list[str] | None = None
+) -> tuple[pa.Table, dict[str, Any] | None]:
+    """:func:`~formation_bench.experiments.seal.read_table`, and no stored duration below
+    zero: durations come from a monotonic clock, so a negative one is a defect of the file
+    (raises :class:`IntegrityError`, which every reader reports in one line)."""
+    table, seal = read_table(path, kind, key, columns)
+    for name in duration_columns():
+        if name not in table.column_names:
+            continue
+        values = table.column(name)
+        if pa.types.is_list(values.type):
+            values = pc.list_flatten(values)
+        lowest = pc.min(values).as_py()
+        if lowest is not None and lowest < 0:
+            raise IntegrityError(
+                f"holds a negative duration {name}={lowest:g} s (durations come from a "
+                "monotonic clock)"
+            )
+    return table, seal
 
 
 def _column(table: pa.Table, name: str) -> list[Any]:
@@ -376,12 +442,13 @@ def load_results(
         raise StoreError(f"{root} holds no results (no {RUNS}/ folder); run a sweep into it first")
 
     def read(key: str) -> tuple[pd.DataFrame, bool]:
-        table, seal = read_table(store.run_path(key), "run", key)
+        table, seal = read_checked(store.run_path(key), "run", key)
         return table.to_pandas(), seal is not None
 
     frames = intact_frames(
         [(store.run_path(key), key) for key in store.keys()], read,
-        redo=f"a sweep of its suite into {root}", redo_all=f"a sweep of their suite into {root}",
+        redo=f"a sweep of the suite holding the run into {root}",
+        redo_all=f"a sweep of their suite into {root}",
         folder=store.runs_dir, strict=strict, notice=notice,
     )  # fmt: skip
     if not frames:
@@ -411,9 +478,7 @@ def load_traces(
     stderr, or raises :class:`IntegrityError` with ``strict``.
     """
     store = ResultStore(root)
-    wanted = (
-        keys if keys is not None else sorted(p.stem for p in store.traces_dir.glob("*.parquet"))
-    )
+    wanted = keys if keys is not None else _stems(store.traces_dir)
 
     def read(key: str) -> tuple[pd.DataFrame, bool]:
         frame, sealed = _verified_trace(store, key)
@@ -422,7 +487,8 @@ def load_traces(
 
     frames = intact_frames(
         [(store.trace_path(key), key) for key in wanted], read,
-        redo=f"a sweep of its suite into {root}", redo_all=f"a sweep of their suite into {root}",
+        redo=f"a sweep of the suite holding the run into {root}",
+        redo_all=f"a sweep of their suite into {root}",
         folder=store.traces_dir, strict=strict, notice=notice,
     )  # fmt: skip
     if not frames and wanted:
@@ -463,7 +529,7 @@ def load_scores(
     redo = f"'formation-bench score' with the run's options and --out {root}"
 
     def read(key: str) -> tuple[pd.DataFrame, bool]:
-        table, seal = read_table(store.score_path(key), "score", key)
+        table, seal = read_checked(store.score_path(key), "score", key)
         return table.to_pandas(), seal is not None
 
     frames = intact_frames(

@@ -29,6 +29,7 @@ from formation_bench.experiments.errors import SweepError, SweepStopped
 from formation_bench.experiments.executors import (
     DEFAULT_WORKER_TIMEOUT_S,
     RunResult,
+    close_client,
     connect_scheduler,
     run_locally,
     run_on_dask,
@@ -159,8 +160,7 @@ def run_sweep(
         ) from None
     finally:
         if client is not None:
-            with interrupts_deferred():
-                client.close()
+            close_client(client)
     summary.wall_s = time.perf_counter() - start
     for failure in summary.failed:
         last = failure["error"].strip().splitlines()[-1]
@@ -202,6 +202,7 @@ def _sweep_locked(
 ) -> SweepSummary:
     from formation_bench.experiments.manifest import (
         check_suite_matches,
+        mixed_commits,
         read_manifest,
         session_entry,
         updated_manifest,
@@ -232,6 +233,9 @@ def _sweep_locked(
     )
     session = session_entry(jobs, scheduler)
     session.update(total=summary.total, already=summary.already, redo=summary.redo)
+    mixed = mixed_commits(manifest, session, summary.already)
+    if mixed:
+        say(mixed)
     manifest = updated_manifest(manifest, suite, summary.total, session)
     guard.check()
     try:
@@ -245,7 +249,7 @@ def _sweep_locked(
         with _sigterm_as_interrupt():
             _execute(
                 pending, store, guard, summary, jobs, client, worker_timeout_s, progress,
-                suite.name,
+                suite.name, say,
             )  # fmt: skip
         state = "failed" if summary.failed else "done"
     except (KeyboardInterrupt, SystemError) as err:
@@ -293,6 +297,7 @@ def _execute(
     worker_timeout_s: float,
     progress: bool | None,
     name: str,
+    say: Callable[[str], None],
 ) -> None:
     from tqdm import tqdm
 
@@ -300,7 +305,7 @@ def _execute(
         return
     by_key = {spec.key: spec for spec in pending}
     results = (
-        run_on_dask(pending, client, worker_timeout_s)
+        run_on_dask(pending, client, worker_timeout_s, notice=say)
         if client is not None
         else run_locally(pending, jobs)
     )
@@ -341,7 +346,7 @@ def _write_run(store: ResultStore, result: RunResult) -> None:
     except OSError as err:
         if not store.run_path(result.key).exists():
             with interrupts_deferred():
-                store.trace_path(result.key).unlink(missing_ok=True)
+                store.inside(store.trace_path(result.key)).unlink(missing_ok=True)
         if err.filename is None:  # a failed write names no file: name the run not stored
             err.filename = str(store.run_path(result.key))
         raise

@@ -80,7 +80,7 @@ def git_info() -> dict[str, Any]:
     info: dict[str, Any] = {
         "version": version,
         "commit": built.removeprefix("g") if built else None,
-        "dirty": ".d" in version.partition("+")[2] if built else None,
+        "dirty": uncommitted(version) if built else None,
         "source": "built",
     }
     source = _editable_source()
@@ -98,6 +98,12 @@ def git_info() -> dict[str, Any]:
     except (OSError, subprocess.SubprocessError):
         return {**info, "commit": None, "dirty": None, "source": str(source)}
     return {**info, "commit": commit, "dirty": bool(dirty), "source": str(source)}
+
+
+def uncommitted(version: str) -> bool:
+    """Whether a version string setuptools-scm stamped says it was built from a tree with
+    uncommitted changes (a ``.dYYYYMMDD`` in its local part)."""
+    return ".d" in version.partition("+")[2]
 
 
 def _editable_source() -> Path | None:

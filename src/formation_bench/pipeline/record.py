@@ -260,6 +260,18 @@ def is_metric_column(name: str) -> bool:
     return metric_of(name) is not None
 
 
+@functools.cache
+def duration_columns() -> tuple[str, ...]:
+    """Columns that hold durations (seconds from a monotonic clock, so never below zero):
+    the run's wall time and every timing metric in seconds, one value per run or per solve."""
+    metrics = tuple(
+        info.name
+        for info in metric_infos()
+        if info.timing and info.unit == "s" and info.per in (Per.RUN, Per.SOLVE)
+    )
+    return ("run_time_s", *metrics)
+
+
 def is_timing_column(name: str) -> bool:
     """Whether a column measures time or place, and so differs between two runs of the same
     thing (declared ``timing`` in the record or in :class:`Metrics`)."""

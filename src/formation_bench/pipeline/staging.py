@@ -44,6 +44,31 @@ class StorageError(OutputError):
     """A write refused by the file system: full, over quota, read-only or not permitted."""
 
 
+class LinkError(OutputError):
+    """A path inside a folder the user named that goes through a symbolic link."""
+
+
+def confined(root: Path, path: Path, option: str = "--out") -> Path:
+    """``path`` (inside ``root``), checked to go through no symbolic link below ``root``.
+
+    Every file and folder a command writes or deletes inside a folder the user named (a
+    results folder's ``runs/``, ``traces/``, ``report/``, its manifest, ...) goes through
+    here first: a link there would send the write, or an ``--overwrite``'s deletion, to
+    wherever it points, outside the folder named. ``root`` itself may be a link: the user
+    named it. Raises :class:`LinkError` naming the link.
+    """
+    step = root
+    for part in path.relative_to(root).parts:
+        step = step / part
+        if step.is_symlink():
+            raise LinkError(
+                f"{option} {root}: {step} is a symbolic link (to {os.readlink(step)}); nothing "
+                f"is written or deleted through a link inside {root}; remove the link (or "
+                "put what it points to in its place)"
+            )
+    return path
+
+
 def storage_problem(err: BaseException, where: Path | str | None = None) -> str | None:
     """``"disk full writing PATH"`` (or read-only, ...) for a refused write, else None.
 
@@ -157,7 +182,9 @@ def staged_folder(out: Path, *, overwrite: bool, option: str = "--out") -> Itera
 
     A write the file system refuses (disk full, read-only, ...) is reported as a
     :class:`StorageError` naming the path it was meant for; nothing of the command is kept
-    and ``out`` is left as it was.
+    and ``out`` is left as it was. An ``out`` the user named may be a link, and is written
+    where it points; one the command chose inside a folder the user named (a results
+    folder's ``report/``) is checked by :func:`confined` first.
     """
     if out.is_symlink() and out.is_dir():
         out = out.resolve()  # write where the link points; renaming onto a link fails
