@@ -116,6 +116,8 @@ def test_report_prints_and_writes_tables_and_figures(results, capsys, tmp_path):
     assert text.startswith("# Results: suite small (")
     assert "formation-bench report" in text.splitlines()[2] and "--page" in text.splitlines()[2]
     assert "<!-- produced by: formation-bench report" in text
+    # the command a reader copies from the page writes it anew: the page exists by then
+    assert f"--page {tmp_path / 'page.md'} --overwrite`" in text.splitlines()[2]
     # findings written by hand into the page survive its regeneration, under the first paragraph
     findings = f"{FINDINGS_START}\nThe trigger halves the solves.\n{FINDINGS_END}"
     page.write_text(text.replace("## Headline metrics", f"{findings}\n\n## Headline metrics"))

@@ -216,10 +216,13 @@ def mark_tables(markdown: str, command: str, provenance: Provenance) -> str:
 
 
 def report_command(results_dir: Path | str, page: Path | str, options: list[str] = ()) -> str:
-    """``formation-bench report DIR [options] --page FILE``."""
+    """``formation-bench report DIR [options] --page FILE --overwrite``: the command that
+    writes the page anew, as a reader copies it (a page that exists is rewritten only with
+    ``--overwrite``)."""
     return shlex.join(
-        ["formation-bench", "report", str(results_dir), *options, "--page", str(page)]
-    )
+        ["formation-bench", "report", str(results_dir), *options, "--page", str(page),
+         "--overwrite"]
+    )  # fmt: skip
 
 
 WRITTEN_BY = "this page is written by `"
