@@ -105,12 +105,12 @@ def measure_optimizer(
 
 def _long_iterations(optimizer: Any, inst: RecordedInstant, deadline_s: float) -> int:
     """:data:`MARGIN` times the iterations ``deadline_s`` allows, by a first estimate from
-    solves of :data:`K_SHORT` and :data:`ROWS_AHEAD` iterations (the fastest of three; the
+    solves of :data:`K_SHORT` and :data:`ROWS_AHEAD` iterations (the fastest of eight; the
     first solves also compile the kernels, or load them from numba's cache)."""
     times = {}
     for k in (K_SHORT, ROWS_AHEAD):
         budget = Budget(max_iterations=k)
-        times[k] = min(_solve_seconds(optimizer, inst, 0, budget)[0] for _ in range(4))
+        times[k] = min(_solve_seconds(optimizer, inst, 0, budget)[0] for _ in range(8))
     per_iteration = (times[ROWS_AHEAD] - times[K_SHORT]) / (ROWS_AHEAD - K_SHORT)
     allowed = (deadline_s - times[K_SHORT]) / per_iteration + K_SHORT
     return max(2 * K_SHORT, round(MARGIN * allowed))
