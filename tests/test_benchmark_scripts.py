@@ -5,9 +5,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+from test_cost_and_problem import random_problem
 
-from perf import kernel_speed, scaling
+from formation_bench.instances.instants import RecordedInstant
+from formation_bench.mpc.scenario import PAPER
+from perf import deadline_overhead, kernel_speed, scaling
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -135,3 +139,20 @@ def test_gradient_speed_orders_the_recorded_solves_both_ways() -> None:
         assert sorted(schedule(("a", "b", "c"), 4, order)) == [
             (name, i) for name in "abc" for i in range(4)
         ]
+
+
+def test_deadline_overhead_prints_a_row_per_optimiser(tmp_path, capsys, monkeypatch):
+    problems = [random_problem(np.random.default_rng(k), PAPER) for k in range(2)]
+    start = np.random.default_rng(1)
+    instants = [RecordedInstant(0, 0, p, p.bounds.sample(start, 1)[0]) for p in problems]
+    monkeypatch.setattr(deadline_overhead, "paper_instants", lambda: instants)
+    out = tmp_path / "deadline.json"
+    args = ["--rounds", "1", "--optimizers", "pso,cma-es", "--json", str(out)]
+    assert deadline_overhead.main(args) == 0
+    printed = capsys.readouterr().out
+    assert "| iterations 1 ms allows |" in printed and "2 problems x 1 rounds" in printed
+    rows = json.loads(out.read_text())["rows"]
+    assert [r["optimizer"] for r in rows] == ["pso", "cma-es"]
+    for row in rows:
+        assert row["per_iteration_s"] > 0 and row["completed"] >= 1
+        assert row["long_iterations"] > row["completed"] or not row["deadline_binds"]

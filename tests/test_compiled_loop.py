@@ -265,8 +265,8 @@ def test_cma_es_restarts_in_the_compiled_loop_give_the_python_loop_result(
 
 @pytest.mark.parametrize("name", compiled_loop_optimizers())
 def test_a_generous_deadline_changes_nothing_in_the_compiled_loop(name):
-    # under a deadline every iteration is its own compiled call, the random blocks reused
-    # across calls: the result and the draws must still be the Python loop's
+    # under a deadline the clock is read inside the compiled block, before every iteration:
+    # the result and the draws must still be the Python loop's
     optimizer = get_optimizer(name)
     problem = random_problem(np.random.default_rng(5), PAPER)
     for budget in [Budget(max_evaluations=1500), Budget(max_iterations=70)]:

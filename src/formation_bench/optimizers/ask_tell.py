@@ -55,6 +55,7 @@ from formation_bench.optimizers.base import (
     check_rng,
     check_x0,
 )
+from formation_bench.optimizers.clock import NEVER, Deadline, read_clock, solve_deadline
 from formation_bench.optimizers.compiled import NFEV, UNLIMITED, evaluate, remaining
 from formation_bench.optimizers.population import (
     ROWS_AHEAD,
@@ -138,11 +139,19 @@ def register_kernels(state_class: type, ask_kernel: Any, tell_kernel: Any) -> No
 @njit
 def iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def]
     """Iterations ``nit + 1``, ... ``nit + rows`` of a compiled solve, while evaluations are
-    left, with the kernels registered for ``state``'s class. Returns ``(state, iterations
-    done)``, the state as a plain tuple (:func:`plain`; :func:`dressed` restores it)."""
+    left and the block's deadline has not passed, with the kernels registered for ``state``'s
+    class. Returns ``(state, iterations done)``, the state as a plain tuple (:func:`plain`;
+    :func:`dressed` restores it)."""
     done = 0
     for row in range(rows):
         if remaining(block.counts) <= 0:
+            break
+        # the clock is read here, not between blocks, so that a deadline costs a method of
+        # short iterations no more than one of long ones (a read is about 22 ns)
+        if (
+            block.deadline_ns != NEVER
+            and read_clock(block.clock, block.clock_id) >= block.deadline_ns
+        ):
             break
         nit += 1
         uniforms = block.uniforms[row]
@@ -310,9 +319,10 @@ class AskTellOptimizer(PopulationOptimizer[Any]):
         budget: Budget | None = None,
         x0: np.ndarray | None = None,
     ) -> OptimizeResult:
-        started = perf_counter()
-        rng = check_rng(rng)
         budget = self.solve_budget(budget)
+        started = perf_counter()
+        deadline = solve_deadline(budget.deadline_s)
+        rng = check_rng(rng)
         x0 = check_x0(x0, bounds)
         t_max = self.planned_iterations(budget)
         params = self.solve_params(bounds, t_max)
@@ -322,7 +332,7 @@ class AskTellOptimizer(PopulationOptimizer[Any]):
         state = self.start(points, costs, rng, params)
         source = self.block_source(bounds, points.shape, t_max)
         state, nit, message, history = run_blocks(
-            self.kernels, state, params, tally, rng, budget, source
+            self.kernels, state, params, tally, rng, budget, source, deadline
         )
         return tally.result(nit, message, history, self.result_info(state))
 
@@ -371,29 +381,32 @@ def run_blocks(
     rng: np.random.Generator,
     budget: Budget,
     source: BlockSource,
+    deadline: Deadline | None = None,
 ) -> tuple[Any, int, str, History]:
     """The iterations of a solve, block by block: ``(state, nit, message, history)``.
 
-    Each block's numbers come from ``source`` before it runs; a deadline is checked before
-    every iteration, which then runs alone in its block, and the evaluation budget before
-    every block (and inside it, before every iteration).
+    Each block's numbers come from ``source`` before it runs; the evaluation budget and the
+    ``deadline`` (by default :func:`~formation_bench.optimizers.clock.solve_deadline` of
+    ``budget``'s, from now) are checked before every block and, inside it, before every
+    iteration: on the same clock, so a block that stopped at the deadline ends the solve.
     """
+    if deadline is None:
+        deadline = solve_deadline(budget.deadline_s)
     history = HistoryRows(*tally.progress())
     iteration_limit = budget.max_iterations if budget.max_iterations is not None else UNLIMITED
-    deadline_s = budget.deadline_s
     message = "iteration budget reached"
     nit = 0
     while nit < iteration_limit:
         if tally.remaining() <= 0:
             message = "evaluation budget reached"
             break
-        if deadline_s is not None and perf_counter() - tally.started >= deadline_s:
+        if deadline.passed():
             message = "deadline reached"
             break
-        rows = 1 if deadline_s is not None else iteration_limit - nit
+        rows = iteration_limit - nit
         state, uniforms, normals = source.next_block(state, rng, nit + 1, rows, tally.remaining())
         draws = Draws(uniforms, normals, *history.next_rows(uniforms.shape[0]))
-        state, done = tally.run(kernels, state, params, draws, nit)
+        state, done = tally.run(kernels, state, params, draws, nit, deadline)
         done = source.iterations_done(state, nit, done)
         history.keep(done)
         nit += done

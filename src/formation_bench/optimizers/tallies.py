@@ -35,6 +35,7 @@ from formation_bench.optimizers.base import (
     OptimizeResult,
     counted_result,
 )
+from formation_bench.optimizers.clock import NEVER, Deadline
 from formation_bench.optimizers.compiled import (
     LIMIT,
     NFEV,
@@ -126,6 +127,14 @@ class Block(NamedTuple):
     """Evaluations after each iteration done."""
     history_fun: np.ndarray
     """Best cost after each iteration done."""
+    clock: int = 0
+    """Address of the clock the deadline is read from (a :class:`~formation_bench.optimizers.
+    clock.Clock`'s)."""
+    clock_id: int = 0
+    """The clock's id."""
+    deadline_ns: int = NEVER
+    """The clock's time at the deadline, checked before each iteration; :data:`~formation_bench.
+    optimizers.clock.NEVER`: none (the clock is not read)."""
 
 
 class Draws(NamedTuple):
@@ -166,10 +175,13 @@ class Tally(abc.ABC):
         """Costs of ``points``: the rows the budget allows evaluated, the rest ``+inf``."""
 
     @abc.abstractmethod
-    def run(self, kernels: Any, state: Any, params: tuple, draws: Draws, nit: int) -> Outcome:
+    def run(
+        self, kernels: Any, state: Any, params: tuple, draws: Draws, nit: int, deadline: Deadline
+    ) -> Outcome:
         """Iterations ``nit + 1``, ... on ``draws`` (one row each) with ``kernels`` (an
-        :class:`~formation_bench.optimizers.ask_tell.Kernels`), while evaluations are left:
-        ``(state, iterations done)``, with ``draws``' history filled."""
+        :class:`~formation_bench.optimizers.ask_tell.Kernels`), while evaluations are left
+        and ``deadline`` has not passed (checked before each iteration): ``(state, iterations
+        done)``, with ``draws``' history filled."""
 
     @abc.abstractmethod
     def result(self, nit: int, message: str, history: History, info: dict) -> OptimizeResult:
@@ -197,8 +209,12 @@ class CompiledTally(Tally):
         objective = self.objective
         return evaluate_prefix(objective.address, objective.data, points, self.counts, self.best)
 
-    def run(self, kernels: Any, state: Any, params: tuple, draws: Draws, nit: int) -> Outcome:
-        block = Block(self.objective.address, self.objective.data, self.counts, self.best, *draws)
+    def run(
+        self, kernels: Any, state: Any, params: tuple, draws: Draws, nit: int, deadline: Deadline
+    ) -> Outcome:
+        clock = deadline.clock
+        block = Block(self.objective.address, self.objective.data, self.counts, self.best,
+                      *draws, clock.address, clock.clock_id, deadline.at_ns)  # fmt: skip
         # the state comes back as plain tuples (plain says why)
         returned, done = kernels.iterate(state, params, block, nit, draws.uniforms.shape[0])
         return dressed(returned, state), done
@@ -264,8 +280,10 @@ class ForwardedTally(CompiledTally):
         self._raise_failure()
         return costs
 
-    def run(self, kernels: Any, state: Any, params: tuple, draws: Draws, nit: int) -> Outcome:
-        outcome = super().run(kernels, state, params, draws, nit)
+    def run(
+        self, kernels: Any, state: Any, params: tuple, draws: Draws, nit: int, deadline: Deadline
+    ) -> Outcome:
+        outcome = super().run(kernels, state, params, draws, nit, deadline)
         self._raise_failure()
         return outcome
 
@@ -292,8 +310,10 @@ class CounterTally(Tally):
 
         return counted_prefix(self.counter, points)
 
-    def run(self, kernels: Any, state: Any, params: tuple, draws: Draws, nit: int) -> Outcome:
-        return iterate_python(kernels, state, params, self.counter, draws, nit)
+    def run(
+        self, kernels: Any, state: Any, params: tuple, draws: Draws, nit: int, deadline: Deadline
+    ) -> Outcome:
+        return iterate_python(kernels, state, params, self.counter, draws, nit, deadline)
 
     def result(self, nit: int, message: str, history: History, info: dict) -> OptimizeResult:
         return counted_result(self.counter, nit, message, history, info)
@@ -306,13 +326,15 @@ def iterate_python(
     counter: EvaluationCounter,
     draws: Draws,
     nit: int,
+    deadline: Deadline | None = None,
 ) -> tuple[Any, int]:
     """The rounds of :func:`~formation_bench.optimizers.ask_tell.iterate`, run from Python
-    (for an ``ask`` that is Python itself), evaluating through ``counter``."""
+    (for an ``ask`` that is Python itself), evaluating through ``counter``, checking
+    ``deadline`` (if any) before each iteration as the compiled block does."""
     ask, tell = kernels.ask, kernels.tell
     done = 0
     for row in range(draws.uniforms.shape[0]):
-        if counter.remaining <= 0:
+        if counter.remaining <= 0 or (deadline is not None and deadline.passed()):
             break
         nit += 1
         uniforms = draws.uniforms[row]
