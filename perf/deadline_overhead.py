@@ -164,6 +164,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--optimizers", default=",".join(OPTIMIZERS), help="comma-separated names")
     parser.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     args = parser.parse_args(argv)
+    if args.rounds < 1:
+        parser.error("--rounds must be >= 1")
+    if not args.deadline_ms > 0:
+        parser.error("--deadline-ms must be > 0")
     results = measure(args.optimizers.split(","), args.deadline_ms / 1000.0, args.rounds)
     print(format_results(results))
     if args.json:
