@@ -18,6 +18,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from types import FrameType
 from typing import Any, NoReturn
 
 # first: Ctrl-C during the imports below ends the command in one line
@@ -57,7 +58,11 @@ from formation_bench.pipeline.checks import (
     check_run,
     check_seed_count,
 )
-from formation_bench.pipeline.interrupts import is_interrupt
+from formation_bench.pipeline.interrupts import (
+    interrupt_again_soon,
+    is_interrupt,
+    unsafe_to_raise,
+)
 from formation_bench.pipeline.outputs import write_metrics, write_text, write_trace
 from formation_bench.pipeline.runner import (
     RunOutcome,
@@ -651,9 +656,12 @@ REPEAT_GRACE_S = 2.0
 _first_press: list[float] = []
 
 
-def _interrupt_once(signum: int, frame: object) -> None:
+def _interrupt_once(signum: int, frame: FrameType | None) -> None:
     now = time.monotonic()
     if _first_press and now - _first_press[0] < REPEAT_GRACE_S:
+        return
+    if unsafe_to_raise(frame):
+        interrupt_again_soon(signum)  # not yet a press: it counts when it is raised
         return
     _first_press[:] = [now]
     raise KeyboardInterrupt

@@ -56,7 +56,7 @@ from formation_bench.instances.library import (
     shipped,
 )
 from formation_bench.optimizers import Budget, Optimizer, get_optimizer
-from formation_bench.pipeline.interrupts import interrupts_deferred
+from formation_bench.pipeline.interrupts import interrupts_deferred, interrupts_where_safe
 from formation_bench.pipeline.record import Provenance
 from formation_bench.pipeline.spec import (
     Identified,
@@ -282,7 +282,7 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
     budget = run.budget_for(optimizer)
     rows = []
     started = time.perf_counter()
-    with threadpool_limits(limits=1):
+    with threadpool_limits(limits=1), interrupts_where_safe():
         for instance in split_instances(library, run.split):
             problem = instance.problem
             rng = np.random.default_rng(np.random.SeedSequence([run.entropy, instance.index]))

@@ -35,7 +35,11 @@ from formation_bench.experiments.executors import (
 )
 from formation_bench.experiments.guard import FolderGuard
 from formation_bench.experiments.suite import Suite
-from formation_bench.pipeline.interrupts import interrupts_deferred, is_interrupt
+from formation_bench.pipeline.interrupts import (
+    interrupts_deferred,
+    is_interrupt,
+    raise_interrupt,
+)
 from formation_bench.pipeline.provenance import now
 from formation_bench.pipeline.spec import RunSpec
 from formation_bench.pipeline.staging import storage_advice, storage_problem
@@ -353,14 +357,10 @@ class _sigterm_as_interrupt:
     def __enter__(self) -> None:
         self.previous = None
         try:
-            self.previous = signal.signal(signal.SIGTERM, self._raise)
+            self.previous = signal.signal(signal.SIGTERM, raise_interrupt)
         except ValueError:  # not the main thread
             self.previous = None
 
     def __exit__(self, *exc: object) -> None:
         if self.previous is not None:
             signal.signal(signal.SIGTERM, self.previous)
-
-    @staticmethod
-    def _raise(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt

@@ -18,6 +18,7 @@ from formation_bench.mpc.metrics import compute_metrics
 from formation_bench.mpc.model import rollout
 from formation_bench.mpc.native_cost import cost_function
 from formation_bench.pipeline import outputs
+from formation_bench.pipeline.interrupts import interrupts_where_safe
 from formation_bench.pipeline.record import Provenance, RunDescription, RunRecord
 from formation_bench.pipeline.spec import RunSpec
 from formation_bench.pipeline.trace_columns import RunLabels
@@ -112,16 +113,17 @@ def execute(spec: RunSpec, *, progress: ProgressCallback | None = None) -> RunOu
     # a fresh sweep worker knows only the built-in and entry-point optimisers
     load_plugins(spec.plugins)
     scenario, optimizer = spec.build()
-    warm_up_kernels()
-    trace = simulate(
-        scenario,
-        optimizer,
-        trigger=spec.trigger,
-        seed=spec.entropy,
-        optimizer_name=spec.optimizer_label,
-        budget=spec.budget_for(optimizer),
-        progress=progress,
-    )
+    with interrupts_where_safe():
+        warm_up_kernels()
+        trace = simulate(
+            scenario,
+            optimizer,
+            trigger=spec.trigger,
+            seed=spec.entropy,
+            optimizer_name=spec.optimizer_label,
+            budget=spec.budget_for(optimizer),
+            progress=progress,
+        )
     metrics = compute_metrics(trace)
     record = RunRecord(
         RunDescription.of(spec, scenario.timing.n_steps, scenario.evaluation.settle_time_s),
