@@ -36,6 +36,7 @@ from formation_bench.cli.common import (
     UsageError,
     add_command,
     assignment,
+    compile_notice,
     deadline_ms,
     error_message,
     non_negative_int,
@@ -64,12 +65,7 @@ from formation_bench.pipeline.interrupts import (
     unsafe_to_raise,
 )
 from formation_bench.pipeline.outputs import write_metrics, write_text, write_trace
-from formation_bench.pipeline.runner import (
-    RunOutcome,
-    execute,
-    kernels_cached,
-    optimizer_kernels_cached,
-)
+from formation_bench.pipeline.runner import RunOutcome, execute
 from formation_bench.pipeline.spec import RunSpec, flat_fields, solve_budget
 from formation_bench.pipeline.staging import OutputError, staged_folder
 
@@ -269,7 +265,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         trigger=args.trigger, seed=args.seed, budget=budget, plugins=plugins.loaded_plugins(),
     )  # fmt: skip
     with _staged(args) as out:
-        _compile_notice(optimizer)
+        compile_notice({args.optimizer: optimizer})
         with _progress_bar(
             spec.optimizer_label, scenario.timing.n_steps, args.progress
         ) as progress:
@@ -330,17 +326,6 @@ def _no_progress(done: int, total: int) -> None:
     pass
 
 
-def _compile_notice(optimizer: Optimizer) -> None:
-    """Say so before a run that will compile: the harness's kernels or ``optimizer``'s are not
-    in numba's cache (the first run, or the first after their source changed)."""
-    if not (kernels_cached() and optimizer_kernels_cached(optimizer)):
-        print(
-            "compiling numba kernels (once: numba caches them; about 15-30 s)...",
-            file=sys.stderr,
-            flush=True,
-        )
-
-
 def reproduce_one(
     seed: int, out: Path, *, figures: bool = True, progress: bool | None = None
 ) -> list[dict[str, Any]]:
@@ -383,7 +368,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     settle = get_scenario("paper").evaluation.settle_time_s
     with _staged(args) as staging:
         # after the output checks, so a refused command prints one line
-        _compile_notice(get_optimizer(DEFAULT_OPTIMIZER))
+        compile_notice({DEFAULT_OPTIMIZER: get_optimizer(DEFAULT_OPTIMIZER)})
         runs = {
             seed: reproduce_one(
                 seed,
