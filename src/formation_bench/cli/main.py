@@ -706,16 +706,16 @@ def main(argv: list[str] | None = None) -> int:
     except (UsageError, plugins.PluginError) as err:
         print(f"{command}: error: {err}", file=sys.stderr)
         return 2
-    except (KeyboardInterrupt, SystemError) as err:
+    except BrokenPipeError:  # output piped into e.g. `head`, which stopped reading
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except BaseException as err:  # C code wraps an interrupt in its own error, of any class
         if not is_interrupt(err):
             raise
         if previous is not None:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
         print(f"{command}: interrupted", file=sys.stderr)
         return command_start.INTERRUPTED_EXIT
-    except BrokenPipeError:  # output piped into e.g. `head`, which stopped reading
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
     finally:
         if previous is not None:
             # the command itself exits next, and a Ctrl-C then must not print a traceback

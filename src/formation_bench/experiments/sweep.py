@@ -252,11 +252,6 @@ def _sweep_locked(
                 suite.name,
             )  # fmt: skip
         state = "failed" if summary.failed else "done"
-    except (KeyboardInterrupt, SystemError) as err:
-        if not is_interrupt(err):
-            raise
-        summary.interrupted = True
-        state = "interrupted"
     except SweepStopped:
         state = "stopped"
         raise
@@ -264,6 +259,11 @@ def _sweep_locked(
         if storage_problem(err) is not None:
             state, refused = "stopped", err
         raise
+    except BaseException as err:  # C code wraps an interrupt in its own error, of any class
+        if not is_interrupt(err):
+            raise
+        summary.interrupted = True
+        state = "interrupted"
     finally:
         # a second Ctrl-C must not cut this short: the manifest would say "running"
         with interrupts_deferred():

@@ -11,7 +11,9 @@ compiled function's first return (numba's lookup of the type not yet memoised, s
 array's lookup catches a ``KeyError``, which replaces the interrupt), it was lost and the
 call returned a tuple holding ``NULL``: a segmentation fault when Python read it.
 llvmlite's object-cache callbacks, which numba's compiler runs, print and drop an exception
-raised in them, so a Ctrl-C there was lost. And CPython (3.11) marks a KeyboardInterrupt that
+raised in them, so a Ctrl-C there was lost, and its bindings mark an LLVM object handed to
+LLVM as owned a statement after the C call that hands it over (an exception between them
+frees it twice). And CPython (3.11) marks a KeyboardInterrupt that
 leaves code run by ``exec`` or ``eval`` of a string as unhandled even when a caller catches
 it, and ends the process by SIGINT at exit (-2 instead of 130): libraries exec strings while
 they import (scipy's array API module does, when numba loads its cache).
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import _thread
 import contextlib
+import os
 import signal
 import sys
 import threading
@@ -37,7 +40,9 @@ milliseconds."""
 
 
 def is_interrupt(error: BaseException) -> bool:
-    """Whether ``error`` is a KeyboardInterrupt or was caused by one (through numba)."""
+    """Whether ``error`` is a KeyboardInterrupt or was caused by one: C code that calls Python
+    wraps an exception in its own (numba a ``SystemError``, CPython a ``RuntimeError`` from a
+    ``__set_name__`` during an import), so the commands test every error with this."""
     seen: set[int] = set()
     current: BaseException | None = error
     while current is not None and id(current) not in seen:
@@ -49,17 +54,20 @@ def is_interrupt(error: BaseException) -> bool:
 
 
 def _unchecked_callbacks() -> set[CodeType]:
-    """The Python functions that compiled code calls without checking for an exception, of
-    the libraries loaded (a library not imported has run no compiled code)."""
-    codes: set[CodeType] = set()
+    """The Python functions that compiled code calls without checking for an exception (a
+    library not imported has run no compiled code)."""
     serialize = sys.modules.get("numba.core.serialize")
-    if serialize is not None:
-        codes.add(serialize._numba_unpickle.__code__)
-    engine = sys.modules.get("llvmlite.binding.executionengine")
-    if engine is not None:
-        codes.add(engine.ExecutionEngine._raw_object_cache_notify.__code__)
-        codes.add(engine.ExecutionEngine._raw_object_cache_getbuffer.__code__)
-    return codes
+    return set() if serialize is None else {serialize._numba_unpickle.__code__}
+
+
+def _llvm_bindings() -> str | None:
+    """The folder of llvmlite's bindings to LLVM, if loaded: they hand an LLVM object over
+    with a C call and then mark it owned (``add_module``, then ``module._owned = True``), so an
+    exception between the two makes Python and LLVM both free it, and they call back into
+    Python from LLVM (the object cache), where an exception is printed and dropped."""
+    bindings = sys.modules.get("llvmlite.binding")
+    file = getattr(bindings, "__file__", None)
+    return None if file is None else os.path.dirname(file) + os.sep
 
 
 def _runs_a_string(frame: FrameType) -> bool:
@@ -73,11 +81,15 @@ def _runs_a_string(frame: FrameType) -> bool:
 
 def unsafe_to_raise(frame: FrameType | None) -> bool:
     """Whether an exception raised at ``frame`` (where a signal found the main thread) would
-    pass through a callback of compiled code that does not take it, or through an executed
-    string (:mod:`this module <formation_bench.pipeline.interrupts>`'s docstring)."""
+    pass through a callback of compiled code that does not take it, llvmlite's bindings, or
+    an executed string (:mod:`this module <formation_bench.pipeline.interrupts>`'s docstring)."""
     unchecked = _unchecked_callbacks()
+    bindings = _llvm_bindings()
     while frame is not None:
-        if frame.f_code in unchecked or _runs_a_string(frame):
+        code = frame.f_code
+        if code in unchecked or _runs_a_string(frame):
+            return True
+        if bindings is not None and code.co_filename.startswith(bindings):
             return True
         frame = frame.f_back
     return False
