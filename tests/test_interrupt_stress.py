@@ -8,6 +8,7 @@ an exit by SIGINT (-2) after the command's one line.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -26,7 +27,7 @@ import pytest
 from formation_bench.experiments.store import load_results
 from formation_bench.experiments.suite import load_suite
 from formation_bench.experiments.sweep import run_sweep
-from formation_bench.pipeline.record import is_timing_column
+from formation_bench.pipeline.record import Provenance, is_timing_column
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -99,15 +100,22 @@ LATEST_S = 4.0
 imports, their compiled kernels or their writes."""
 
 
+PROVENANCE = {field.name for field in dataclasses.fields(Provenance)}
+"""Columns that say where and with what code a run ran (the same for every trial)."""
+
+
 def deterministic(frame: pd.DataFrame) -> pd.DataFrame:
-    keep = [c for c in frame.columns if not is_timing_column(c)]
+    keep = [c for c in frame.columns if not is_timing_column(c) and c not in PROVENANCE]
     return frame[keep].sort_values("run_key").reset_index(drop=True)
 
 
 def paper_metrics(folder: Path) -> list[dict]:
-    """The reproduce records without what differs between two runs (times, machine)."""
+    """The reproduce records without what differs between two runs (times, machine, code)."""
     records = json.loads((folder / "metrics.json").read_text())
-    return [{k: v for k, v in r.items() if not is_timing_column(k)} for r in records]
+    return [
+        {k: v for k, v in r.items() if not is_timing_column(k) and k not in PROVENANCE}
+        for r in records
+    ]
 
 
 def command(args: list[str]) -> list[str]:
