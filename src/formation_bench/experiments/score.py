@@ -420,7 +420,8 @@ def run_scores(
                 if result.failed:
                     failed.append((run, result.error or ""))
                     continue
-                store.write_score(run.key, result.rows)
+                with interrupts_deferred():  # a Ctrl-C waits until the file is whole
+                    store.write_score(run.key, result.rows)
                 yield run
         finally:
             # stop the workers now, and let no Ctrl-C cut that short (as a sweep does)

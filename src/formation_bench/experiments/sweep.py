@@ -339,9 +339,11 @@ def _execute(
 
 
 def _write_run(store: ResultStore, result: RunResult) -> None:
-    """Store one run; if the file system refuses, leave no trace without its run row."""
+    """Store one run; if the file system refuses, leave no trace without its run row. A
+    Ctrl-C meanwhile is raised once the run is stored, not halfway through its file."""
     try:
-        store.write_run(result.key, result.row or {}, result.trace)
+        with interrupts_deferred():
+            store.write_run(result.key, result.row or {}, result.trace)
     except OSError as err:
         if not store.run_path(result.key).exists():
             with interrupts_deferred():
