@@ -369,7 +369,7 @@ def tutorial_plugin_source() -> str:
 @pytest.fixture(autouse=True)
 def cold_kernel_cache(monkeypatch):
     """As on a first run: the compile notice must not come before a refusal."""
-    monkeypatch.setattr("formation_bench.cli.main.kernels_cached", lambda: False)
+    monkeypatch.setattr("formation_bench.pipeline.runner.kernels_cached", lambda: False)
 
 
 @pytest.fixture(autouse=True)

@@ -214,14 +214,14 @@ def test_version_and_help(capsys):
 
 
 def test_first_run_notice_and_progress_bar_go_to_stderr(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr("formation_bench.cli.main.kernels_cached", lambda: False)
+    monkeypatch.setattr("formation_bench.pipeline.runner.kernels_cached", lambda: False)
     args = ["run", "--optimizer", "pso", "--no-trigger", "--no-figures", "--progress",
             "--set", "n_steps=4", "--set", "settle_time_s=0"]  # fmt: skip
     assert main([*args, "--out", str(tmp_path / "a")]) == 0
     err = capsys.readouterr().err
     assert "compiling numba kernels" in err and "/4 [" in err and "instant" in err
-    monkeypatch.setattr("formation_bench.cli.main.kernels_cached", lambda: True)
-    monkeypatch.setattr("formation_bench.cli.main.optimizer_kernels_cached", lambda _: True)
+    monkeypatch.setattr("formation_bench.pipeline.runner.kernels_cached", lambda: True)
+    monkeypatch.setattr("formation_bench.pipeline.runner.optimizer_kernels_cached", lambda _: True)
     assert main([*args, "--no-progress", "--out", str(tmp_path / "b")]) == 0
     assert capsys.readouterr().err == ""
 

@@ -214,7 +214,7 @@ def test_reproduce_prints_counts_as_integers_units_with_names_and_the_budget_las
     tmp_path, capsys, monkeypatch
 ):
     monkeypatch.setattr("formation_bench.cli.main.reproduce_one", fake_records)
-    monkeypatch.setattr("formation_bench.cli.main.kernels_cached", lambda: True)
+    monkeypatch.setattr("formation_bench.pipeline.runner.kernels_cached", lambda: True)
     assert main(["reproduce", "--no-figures", "--out", str(tmp_path / "r")]) == 0
     printed = capsys.readouterr().out
     check_reproduce_output(printed)
@@ -241,28 +241,28 @@ SHORT_PSO = ["run", "--optimizer", "pso", "--no-trigger", "--no-figures", "--no-
 
 def test_a_run_whose_optimizer_is_not_compiled_says_so(tmp_path, monkeypatch, capsys):
     """The harness's kernels cached, pso's not (pso after modified-bso runs): the notice."""
-    monkeypatch.setattr("formation_bench.cli.main.kernels_cached", lambda: True)
+    monkeypatch.setattr("formation_bench.pipeline.runner.kernels_cached", lambda: True)
     checked = []
 
     def pso_cold(optimizer: object) -> bool:
         checked.append(type(optimizer).__name__)
         return False
 
-    monkeypatch.setattr("formation_bench.cli.main.optimizer_kernels_cached", pso_cold)
+    monkeypatch.setattr("formation_bench.pipeline.runner.optimizer_kernels_cached", pso_cold)
     assert main([*SHORT_PSO, "--out", str(tmp_path / "a")]) == 0
     assert capsys.readouterr().err.startswith(NOTICE)
     assert checked == ["PSO"]
-    monkeypatch.setattr("formation_bench.cli.main.optimizer_kernels_cached", lambda _: True)
+    monkeypatch.setattr("formation_bench.pipeline.runner.optimizer_kernels_cached", lambda _: True)
     assert main([*SHORT_PSO, "--out", str(tmp_path / "b")]) == 0
     assert capsys.readouterr().err == ""
 
 
 def test_reproduce_checks_the_modified_bso(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr("formation_bench.cli.main.reproduce_one", fake_records)
-    monkeypatch.setattr("formation_bench.cli.main.kernels_cached", lambda: True)
+    monkeypatch.setattr("formation_bench.pipeline.runner.kernels_cached", lambda: True)
     checked = []
     monkeypatch.setattr(
-        "formation_bench.cli.main.optimizer_kernels_cached",
+        "formation_bench.pipeline.runner.optimizer_kernels_cached",
         lambda optimizer: checked.append(type(optimizer).__name__) or False,
     )
     assert main(["reproduce", "--no-figures", "--out", str(tmp_path / "r")]) == 0

@@ -14,7 +14,9 @@ import ast
 import dataclasses
 import math
 import re
+import sys
 import textwrap
+from collections.abc import Mapping
 from typing import Any
 
 from formation_bench.optimizers import OPTIMIZERS, Budget, Optimizer, get_optimizer
@@ -195,3 +197,23 @@ def seed(text: str) -> int:
     if not 0 <= value <= MAX_SEED:
         raise argparse.ArgumentTypeError(f"must be an integer in [0, 2**128 - 1], got {value}")
     return value
+
+
+def compile_notice(optimizers: Mapping[str, Optimizer], *, harness: bool = True) -> None:
+    """Say once on stderr, before work that will compile, what numba compiles and roughly for
+    how long: the harness's kernels (``harness``) or an optimiser's (labels to optimisers) not
+    in numba's cache, as on the first run or the first after their source changed. Printed in
+    every output mode; no timing holds the compilation (a warm-up solve runs it first)."""
+    from formation_bench.pipeline.runner import kernels_cached, optimizer_kernels_cached
+
+    cold = [
+        label for label, optimizer in optimizers.items() if not optimizer_kernels_cached(optimizer)
+    ]
+    parts = (["the harness"] if harness and not kernels_cached() else []) + cold
+    if parts:
+        print(
+            f"compiling numba kernels of {', '.join(parts)} (once: numba caches them; about "
+            "15 s to 2 min each, before any timed solve)...",
+            file=sys.stderr,
+            flush=True,
+        )

@@ -18,6 +18,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from types import FrameType
 from typing import Any, NoReturn
 
 # first: Ctrl-C during the imports below ends the command in one line
@@ -36,6 +37,7 @@ from formation_bench.cli.common import (
     add_command,
     assignment,
     budget_limit,
+    compile_notice,
     deadline_ms,
     error_message,
     parse_value,
@@ -57,14 +59,13 @@ from formation_bench.pipeline.checks import (
     check_run,
     check_seed_count,
 )
-from formation_bench.pipeline.interrupts import is_interrupt
-from formation_bench.pipeline.outputs import write_metrics, write_text, write_trace
-from formation_bench.pipeline.runner import (
-    RunOutcome,
-    execute,
-    kernels_cached,
-    optimizer_kernels_cached,
+from formation_bench.pipeline.interrupts import (
+    interrupt_again_soon,
+    is_interrupt,
+    unsafe_to_raise,
 )
+from formation_bench.pipeline.outputs import write_metrics, write_text, write_trace
+from formation_bench.pipeline.runner import RunOutcome, execute
 from formation_bench.pipeline.spec import RunSpec, flat_fields, solve_budget
 from formation_bench.pipeline.staging import OutputError, staged_folder
 
@@ -264,7 +265,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         trigger=args.trigger, seed=args.seed, budget=budget, plugins=plugins.loaded_plugins(),
     )  # fmt: skip
     with _staged(args) as out:
-        _compile_notice(optimizer)
+        compile_notice({args.optimizer: optimizer})
         with _progress_bar(
             spec.optimizer_label, scenario.timing.n_steps, args.progress
         ) as progress:
@@ -325,17 +326,6 @@ def _no_progress(done: int, total: int) -> None:
     pass
 
 
-def _compile_notice(optimizer: Optimizer) -> None:
-    """Say so before a run that will compile: the harness's kernels or ``optimizer``'s are not
-    in numba's cache (the first run, or the first after their source changed)."""
-    if not (kernels_cached() and optimizer_kernels_cached(optimizer)):
-        print(
-            "compiling numba kernels (once: numba caches them; about 15-30 s)...",
-            file=sys.stderr,
-            flush=True,
-        )
-
-
 def reproduce_one(
     seed: int, out: Path, *, figures: bool = True, progress: bool | None = None
 ) -> list[dict[str, Any]]:
@@ -378,7 +368,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     settle = get_scenario("paper").evaluation.settle_time_s
     with _staged(args) as staging:
         # after the output checks, so a refused command prints one line
-        _compile_notice(get_optimizer(DEFAULT_OPTIMIZER))
+        compile_notice({DEFAULT_OPTIMIZER: get_optimizer(DEFAULT_OPTIMIZER)})
         runs = {
             seed: reproduce_one(
                 seed,
@@ -668,9 +658,12 @@ REPEAT_GRACE_S = 2.0
 _first_press: list[float] = []
 
 
-def _interrupt_once(signum: int, frame: object) -> None:
+def _interrupt_once(signum: int, frame: FrameType | None) -> None:
     now = time.monotonic()
     if _first_press and now - _first_press[0] < REPEAT_GRACE_S:
+        return
+    if unsafe_to_raise(frame):
+        interrupt_again_soon(signum)  # not yet a press: it counts when it is raised
         return
     _first_press[:] = [now]
     raise KeyboardInterrupt
@@ -730,16 +723,16 @@ def main(argv: list[str] | None = None) -> int:
     except (UsageError, plugins.PluginError) as err:
         print(f"{command}: error: {err}", file=sys.stderr)
         return 2
-    except (KeyboardInterrupt, SystemError) as err:
+    except BrokenPipeError:  # output piped into e.g. `head`, which stopped reading
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except BaseException as err:  # C code wraps an interrupt in its own error, of any class
         if not is_interrupt(err):
             raise
         if previous is not None:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
         print(f"{command}: interrupted", file=sys.stderr)
         return command_start.INTERRUPTED_EXIT
-    except BrokenPipeError:  # output piped into e.g. `head`, which stopped reading
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
     finally:
         if previous is not None:
             # the command itself exits next, and a Ctrl-C then must not print a traceback

@@ -7,6 +7,7 @@ allowed values, exit code 2, no traceback.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shlex
 import sys
@@ -17,6 +18,7 @@ from pathlib import Path
 from formation_bench.cli.common import (
     add_command,
     budget_limit,
+    compile_notice,
     configured_optimizer,
     deadline_ms,
     positive_int,
@@ -32,6 +34,7 @@ from formation_bench.experiments.suite import (
 )
 from formation_bench.experiments.sweep import DEFAULT_JOBS, plan, run_sweep
 from formation_bench.instances.library import LIBRARY_VERSIONS, SHIPPED_VERSION
+from formation_bench.optimizers import get_optimizer
 from formation_bench.optimizers.base import BUDGET_MINIMUM
 from formation_bench.pipeline.checks import (
     JOBS_PER_CPU,
@@ -40,7 +43,7 @@ from formation_bench.pipeline.checks import (
     check_scheduler_address,
 )
 from formation_bench.pipeline.interrupts import is_interrupt
-from formation_bench.pipeline.spec import solve_budget
+from formation_bench.pipeline.spec import from_json_value, solve_budget
 from formation_bench.pipeline.staging import (
     OutputError,
     check_output_folder,
@@ -132,6 +135,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             # what repeats this run exactly, on its own
             print(f"    {spec.run_command(out=f'repeat-{spec.key}')}")
         return 0
+    compile_notice(
+        {
+            entry.label: get_optimizer(entry.name, **from_json_value(json.loads(entry.overrides)))
+            for entry in suite.optimizers
+        }
+    )
     summary = run_sweep(
         suite,
         args.out,
@@ -209,6 +218,7 @@ def cmd_score(args: argparse.Namespace) -> int:
     optimizer = runs[0].optimizer()
     for budget in budgets:
         check_optimizer(optimizer, solve_budget(budget, optimizer))  # as run and sweep do
+    compile_notice({runs[0].optimizer_label: optimizer})
     start = time.perf_counter()
     done = 0
     try:

@@ -56,8 +56,9 @@ from formation_bench.instances.library import (
     shipped,
 )
 from formation_bench.optimizers import Budget, Optimizer, get_optimizer
-from formation_bench.pipeline.interrupts import interrupts_deferred
+from formation_bench.pipeline.interrupts import interrupts_deferred, interrupts_where_safe
 from formation_bench.pipeline.record import Provenance
+from formation_bench.pipeline.runner import warm_up_solve
 from formation_bench.pipeline.spec import (
     Identified,
     budget_deadline_ms,
@@ -281,9 +282,13 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
     optimizer = run.optimizer()
     budget = run.budget_for(optimizer)
     rows = []
-    started = time.perf_counter()
-    with threadpool_limits(limits=1):
-        for instance in split_instances(library, run.split):
+    instances = split_instances(library, run.split)
+    with threadpool_limits(limits=1), interrupts_where_safe():
+        if instances:  # compiled before the clock starts: no solve's time holds it
+            first = instances[0].problem
+            warm_up_solve(optimizer, first, first.bounds, budget, instances[0].warm_start)
+        started = time.perf_counter()
+        for instance in instances:
             problem = instance.problem
             rng = np.random.default_rng(np.random.SeedSequence([run.entropy, instance.index]))
             start = time.perf_counter()
@@ -415,7 +420,8 @@ def run_scores(
                 if result.failed:
                     failed.append((run, result.error or ""))
                     continue
-                store.write_score(run.key, result.rows)
+                with interrupts_deferred():  # a Ctrl-C waits until the file is whole
+                    store.write_score(run.key, result.rows)
                 yield run
         finally:
             # stop the workers now, and let no Ctrl-C cut that short (as a sweep does)

@@ -36,7 +36,11 @@ from formation_bench.experiments.executors import (
 )
 from formation_bench.experiments.guard import FolderGuard
 from formation_bench.experiments.suite import Suite
-from formation_bench.pipeline.interrupts import interrupts_deferred, is_interrupt
+from formation_bench.pipeline.interrupts import (
+    interrupts_deferred,
+    is_interrupt,
+    raise_interrupt,
+)
 from formation_bench.pipeline.provenance import now
 from formation_bench.pipeline.spec import RunSpec
 from formation_bench.pipeline.staging import storage_advice, storage_problem
@@ -252,11 +256,6 @@ def _sweep_locked(
                 suite.name, say,
             )  # fmt: skip
         state = "failed" if summary.failed else "done"
-    except (KeyboardInterrupt, SystemError) as err:
-        if not is_interrupt(err):
-            raise
-        summary.interrupted = True
-        state = "interrupted"
     except SweepStopped:
         state = "stopped"
         raise
@@ -264,6 +263,11 @@ def _sweep_locked(
         if storage_problem(err) is not None:
             state, refused = "stopped", err
         raise
+    except BaseException as err:  # C code wraps an interrupt in its own error, of any class
+        if not is_interrupt(err):
+            raise
+        summary.interrupted = True
+        state = "interrupted"
     finally:
         # a second Ctrl-C must not cut this short: the manifest would say "running"
         with interrupts_deferred():
@@ -340,9 +344,11 @@ def _execute(
 
 
 def _write_run(store: ResultStore, result: RunResult) -> None:
-    """Store one run; if the file system refuses, leave no trace without its run row."""
+    """Store one run; if the file system refuses, leave no trace without its run row. A
+    Ctrl-C meanwhile is raised once the run is stored, not halfway through its file."""
     try:
-        store.write_run(result.key, result.row or {}, result.trace)
+        with interrupts_deferred():
+            store.write_run(result.key, result.row or {}, result.trace)
     except OSError as err:
         if not store.run_path(result.key).exists():
             with interrupts_deferred():
@@ -358,14 +364,10 @@ class _sigterm_as_interrupt:
     def __enter__(self) -> None:
         self.previous = None
         try:
-            self.previous = signal.signal(signal.SIGTERM, self._raise)
+            self.previous = signal.signal(signal.SIGTERM, raise_interrupt)
         except ValueError:  # not the main thread
             self.previous = None
 
     def __exit__(self, *exc: object) -> None:
         if self.previous is not None:
             signal.signal(signal.SIGTERM, self.previous)
-
-    @staticmethod
-    def _raise(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt

@@ -350,6 +350,12 @@ class Optimizer(abc.ABC):
             return budget  # the usual call: the default budget is not built
         return self.default_budget if budget is None else budget.within(self.default_budget)
 
+    def forget_solves(self) -> None:
+        """Drop what earlier solves left for the next one (an exact solver's workspace warm
+        started from the previous plan), so that the next solve runs as a first one would.
+        A warm-up solve before timed ones calls it; there is nothing to drop by default."""
+        return None
+
     @abc.abstractmethod
     def minimize(
         self,

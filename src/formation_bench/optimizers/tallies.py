@@ -53,11 +53,10 @@ def plain(value: Any) -> Any:
     """``value`` with every named tuple in it, nested ones too, made a plain tuple.
 
     A compiled function returns its state to Python through this. Numba boxes a named tuple
-    by calling a Python function for its class without checking the result, so a Ctrl-C
-    that surfaces in that call crashed the process (a segmentation fault, seen once when
-    Ctrl-C was pressed twice during a run); a plain tuple is boxed without any Python code, and
-    :func:`dressed` gives the value its classes back in Python, where an interrupt is an
-    ordinary ``KeyboardInterrupt``.
+    by calling its class without checking the result; a plain tuple spares that call (its
+    arrays are still boxed through a Python lookup of their type, which is why the command's
+    Ctrl-C handler waits until a compiled call has returned: :mod:`formation_bench.pipeline.
+    interrupts`), and :func:`dressed` gives the value its classes back in Python.
     """
     if isinstance(value, tuple):
         return tuple(plain(v) for v in value)

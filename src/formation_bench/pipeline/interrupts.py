@@ -1,25 +1,48 @@
-"""Telling an interrupted run from a failed one.
+"""Telling an interrupted run from a failed one, and raising an interrupt only where Python
+can take it.
 
 Ctrl-C (or SIGTERM, which the sweeps turn into KeyboardInterrupt) raises its exception at
-the next Python bytecode. During a compiled kernel that is numba boxing the kernel's
-returned arrays, which runs a small Python function: the interrupt surfaces there and numba's
-dispatcher reports it as a ``SystemError`` ("returned a result with an exception set") whose
-cause chain holds the ``KeyboardInterrupt``. Most of a run is spent in compiled kernels, so
-this is the usual way an interrupt arrives.
+the next Python bytecode. During a compiled kernel that would be numba boxing the kernel's
+returned arrays: numba fetches each array's Python type by calling a small Python function
+(``numba.core.serialize._numba_unpickle``) and does not check whether that call failed. An
+exception raised there leaves the boxing in no defined state: it reached Python as a
+``SystemError`` ("returned a result with an exception set") holding the interrupt, or, at a
+compiled function's first return (numba's lookup of the type not yet memoised, so the next
+array's lookup catches a ``KeyError``, which replaces the interrupt), it was lost and the
+call returned a tuple holding ``NULL``: a segmentation fault when Python read it.
+llvmlite's object-cache callbacks, which numba's compiler runs, print and drop an exception
+raised in them, so a Ctrl-C there was lost, and its bindings mark an LLVM object handed to
+LLVM as owned a statement after the C call that hands it over (an exception between them
+frees it twice). And CPython (3.11) marks a KeyboardInterrupt that
+leaves code run by ``exec`` or ``eval`` of a string as unhandled even when a caller catches
+it, and ends the process by SIGINT at exit (-2 instead of 130): libraries exec strings while
+they import (scipy's array API module does, when numba loads its cache).
+:func:`raise_interrupt` therefore raises only outside such places (:func:`unsafe_to_raise`);
+inside one it asks for the signal again a moment later, when Python is back in ordinary code.
 """
 
 from __future__ import annotations
 
+import _thread
 import contextlib
+import os
 import signal
 import sys
 import threading
 from collections.abc import Iterator
+from types import CodeType, FrameType
 from typing import Any
+
+AGAIN_AFTER_S = 0.001
+"""How long after a signal that found Python where raising is unsafe it is delivered again:
+a compiled call's callback returns within microseconds, an executed string within
+milliseconds."""
 
 
 def is_interrupt(error: BaseException) -> bool:
-    """Whether ``error`` is a KeyboardInterrupt or was caused by one (through numba)."""
+    """Whether ``error`` is a KeyboardInterrupt or was caused by one: C code that calls Python
+    wraps an exception in its own (numba a ``SystemError``, CPython a ``RuntimeError`` from a
+    ``__set_name__`` during an import), so the commands test every error with this."""
     seen: set[int] = set()
     current: BaseException | None = error
     while current is not None and id(current) not in seen:
@@ -28,6 +51,84 @@ def is_interrupt(error: BaseException) -> bool:
         seen.add(id(current))
         current = current.__cause__ or current.__context__
     return False
+
+
+def _unchecked_callbacks() -> set[CodeType]:
+    """The Python functions that compiled code calls without checking for an exception (a
+    library not imported has run no compiled code)."""
+    serialize = sys.modules.get("numba.core.serialize")
+    return set() if serialize is None else {serialize._numba_unpickle.__code__}
+
+
+def _llvm_bindings() -> str | None:
+    """The folder of llvmlite's bindings to LLVM, if loaded: they hand an LLVM object over
+    with a C call and then mark it owned (``add_module``, then ``module._owned = True``), so an
+    exception between the two makes Python and LLVM both free it, and they call back into
+    Python from LLVM (the object cache), where an exception is printed and dropped."""
+    bindings = sys.modules.get("llvmlite.binding")
+    file = getattr(bindings, "__file__", None)
+    return None if file is None else os.path.dirname(file) + os.sep
+
+
+def _runs_a_string(frame: FrameType) -> bool:
+    """Whether ``frame`` is the module-level code of an ``exec`` or ``eval`` of a string (the
+    bottom frame is not: a ``python -c`` program is that, and its interrupt is unhandled)."""
+    code = frame.f_code
+    return (
+        code.co_name == "<module>" and code.co_filename == "<string>" and frame.f_back is not None
+    )
+
+
+def unsafe_to_raise(frame: FrameType | None) -> bool:
+    """Whether an exception raised at ``frame`` (where a signal found the main thread) would
+    pass through a callback of compiled code that does not take it, llvmlite's bindings, or
+    an executed string (:mod:`this module <formation_bench.pipeline.interrupts>`'s docstring)."""
+    unchecked = _unchecked_callbacks()
+    bindings = _llvm_bindings()
+    while frame is not None:
+        code = frame.f_code
+        if code in unchecked or _runs_a_string(frame):
+            return True
+        if bindings is not None and code.co_filename.startswith(bindings):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def interrupt_again_soon(signum: int) -> None:
+    """Deliver ``signum`` to the main thread's Python handler again after
+    :data:`AGAIN_AFTER_S` (unless the handler is by then ignoring it or Python's default)."""
+    timer = threading.Timer(AGAIN_AFTER_S, _thread.interrupt_main, (signum,))
+    timer.daemon = True
+    timer.start()
+
+
+def raise_interrupt(signum: int, frame: FrameType | None) -> None:
+    """A signal handler: raise KeyboardInterrupt where the signal found the main thread, or,
+    where that is unsafe, a moment later (:func:`unsafe_to_raise`)."""
+    if unsafe_to_raise(frame):
+        interrupt_again_soon(signum)
+        return
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def interrupts_where_safe() -> Iterator[None]:
+    """Python's own Ctrl-C handler replaced by :func:`raise_interrupt` for the block, so a
+    run started from a notebook or a script is interrupted as safely as the command's; a
+    handler someone else installed is left alone, and so is a thread other than the main one.
+    """
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    ):
+        yield
+        return
+    signal.signal(signal.SIGINT, raise_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 class interrupts_deferred:

@@ -4,8 +4,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import gc
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -13,11 +16,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from formation_bench.mpc.cost import Penalties, pack_problem, packed_batch_cost
-from formation_bench.mpc.loop import ProgressCallback, Trace, simulate
+from formation_bench.mpc.loop import ClosedLoop, ProgressCallback, Trace, simulate
 from formation_bench.mpc.metrics import compute_metrics
 from formation_bench.mpc.model import rollout
 from formation_bench.mpc.native_cost import cost_function
 from formation_bench.pipeline import outputs
+from formation_bench.pipeline.interrupts import interrupts_where_safe
 from formation_bench.pipeline.record import Provenance, RunDescription, RunRecord
 from formation_bench.pipeline.spec import RunSpec
 from formation_bench.pipeline.trace_columns import RunLabels
@@ -27,7 +31,8 @@ if TYPE_CHECKING:
     import pandas as pd
     import pyarrow as pa
 
-    from formation_bench.optimizers import Optimizer
+    from formation_bench.mpc.scenario import Scenario
+    from formation_bench.optimizers import BatchObjective, Bounds, Budget, Optimizer
 
 
 @dataclass(frozen=True)
@@ -106,22 +111,71 @@ def warm_up_kernels() -> None:
     cost_function()
 
 
+@contextlib.contextmanager
+def compile_garbage_collected() -> Iterator[None]:
+    """Collect Python's garbage at the end of the block if numba loaded or compiled kernels in
+    it: what that leaves made the next full collection (0.1-0.2 s) land in a timed solve (a
+    score run's first solve 3-5 ms against 0.7). A block that compiled nothing, as in a warm
+    process, collects nothing, since a full collection costs that much every time."""
+    from numba.core import event  # numba's event API: the compiler lock is taken to load or compile
+
+    with event.install_recorder("numba:compiler_lock") as compiled:
+        yield
+    if compiled.buffer:
+        gc.collect()
+
+
+WARM_UP_SEED = 0
+"""Seed of the generators of a warm-up (:func:`warm_up_solve`, :func:`warm_up_loop`): their
+own, so the timed solves' random numbers are those they would be without it."""
+
+
+def warm_up_solve(
+    optimizer: Optimizer,
+    objective: BatchObjective,
+    bounds: Bounds,
+    budget: Budget | None,
+    x0: np.ndarray | None,
+) -> None:
+    """One untimed solve before timed ones, so that no timed solve holds numba's compilation
+    (or loading) of ``optimizer``'s kernels, nor an exact solver's building of its functions;
+    then :meth:`~formation_bench.optimizers.Optimizer.forget_solves`, so that the first timed
+    solve is the same as without it."""
+    with compile_garbage_collected():
+        optimizer.minimize(objective, bounds, np.random.default_rng(WARM_UP_SEED), budget, x0)
+    optimizer.forget_solves()
+
+
+def warm_up_loop(scenario: Scenario, optimizer: Optimizer, budget: Budget | None) -> None:
+    """One untimed instant of the closed loop of ``scenario`` (every UAV solves once): the
+    harness's kernels and ``optimizer``'s compiled or built on the problems the run solves."""
+    with compile_garbage_collected():
+        warm_up_kernels()
+        loop = ClosedLoop(scenario, optimizer, trigger=False, seed=WARM_UP_SEED, budget=budget)
+        loop.control_period(0)
+    optimizer.forget_solves()
+
+
 def execute(spec: RunSpec, *, progress: ProgressCallback | None = None) -> RunOutcome:
-    """Carry out one run: the one path of ``run``, ``reproduce`` and every run of a sweep."""
-    start = time.perf_counter()
+    """Carry out one run: the one path of ``run``, ``reproduce`` and every run of a sweep.
+
+    Its times (``run_time_s``, every solve's) start after a warm-up (:func:`warm_up_loop`),
+    so the first run of a process measures what the others do."""
     # a fresh sweep worker knows only the built-in and entry-point optimisers
     load_plugins(spec.plugins)
     scenario, optimizer = spec.build()
-    warm_up_kernels()
-    trace = simulate(
-        scenario,
-        optimizer,
-        trigger=spec.trigger,
-        seed=spec.entropy,
-        optimizer_name=spec.optimizer_label,
-        budget=spec.budget_for(optimizer),
-        progress=progress,
-    )
+    with interrupts_where_safe():
+        warm_up_loop(scenario, optimizer, spec.budget_for(optimizer))
+        start = time.perf_counter()
+        trace = simulate(
+            scenario,
+            optimizer,
+            trigger=spec.trigger,
+            seed=spec.entropy,
+            optimizer_name=spec.optimizer_label,
+            budget=spec.budget_for(optimizer),
+            progress=progress,
+        )
     metrics = compute_metrics(trace)
     record = RunRecord(
         RunDescription.of(spec, scenario.timing.n_steps, scenario.evaluation.settle_time_s),

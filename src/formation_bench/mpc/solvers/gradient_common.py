@@ -17,7 +17,7 @@ handles once:
 from __future__ import annotations
 
 from collections import OrderedDict
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -87,6 +87,16 @@ class SolverCacheMixin:
     :data:`SOLVER_CACHE_ENTRIES` entries, so a long sweep over many problem shapes does not
     grow it without bound.
     """
+
+    CARRIED: ClassVar[frozenset[str]] = frozenset()
+    """The first element of the cache keys whose entries a solve leaves for the next one (a
+    warm-started workspace, the previous plan's multipliers), as opposed to built solvers."""
+
+    def forget_solves(self) -> None:
+        """Drop the entries of :attr:`CARRIED`, keep the built solvers."""
+        cache = self._solver_cache
+        for key in [k for k in cache if isinstance(k, tuple) and k and k[0] in self.CARRIED]:
+            del cache[key]
 
     @property
     def _solver_cache(self) -> LruCache:

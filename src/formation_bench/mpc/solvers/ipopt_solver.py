@@ -37,7 +37,7 @@ from __future__ import annotations
 import enum
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -134,6 +134,8 @@ class _Memory:
 @dataclass(frozen=True)
 class IpoptOptimizer(SolverCacheMixin, Optimizer):
     """IPOPT (via CasADi ``nlpsol``) on the problem of eq. (14); derivative-based baseline."""
+
+    CARRIED: ClassVar[frozenset[str]] = frozenset({"memory"})  # the previous plan's multipliers
 
     shooting: Shooting = setting(Shooting.SINGLE, doc="Transcription: single or multiple shooting")
     """Transcription: ``single`` or ``multiple`` shooting (default chosen by measurement,

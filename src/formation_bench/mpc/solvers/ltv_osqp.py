@@ -68,7 +68,7 @@ import enum
 import functools
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -344,6 +344,8 @@ class _UavSolver:
 @dataclass(frozen=True)
 class LtvOsqpOptimizer(SolverCacheMixin, Optimizer):
     """Linear time-varying MPC: linearise about the shifted plan, solve the QP with OSQP."""
+
+    CARRIED: ClassVar[frozenset[str]] = frozenset({"osqp"})  # each UAV's warm workspace
 
     form: QPForm = setting(
         QPForm.CONDENSED,
