@@ -21,7 +21,7 @@ from perf.deadline_overhead import measure_optimizer
 
 
 def slow_sphere(x: np.ndarray) -> np.ndarray:
-    time.sleep(0.002)  # every batch takes 2 ms, so a 10 ms deadline allows a few iterations
+    time.sleep(0.002)  # every batch takes 2 ms, so a 50 ms deadline allows a few dozen
     return np.sum(x**2, axis=1)
 
 
@@ -29,7 +29,7 @@ def slow_sphere(x: np.ndarray) -> np.ndarray:
 def test_a_population_method_stops_at_its_deadline_with_its_best_point(name):
     bounds = Bounds(np.full(4, -5.0), np.full(4, 5.0))
     optimizer = get_optimizer(name)
-    budget = Budget(max_iterations=10_000, deadline_s=0.01)
+    budget = Budget(max_iterations=10_000, deadline_s=0.05)
     # compile (or load from numba's cache, about 13 ms a kernel) what a deadline solve runs
     # first: the deadline is about the iterations
     for warm_up in (Budget(max_iterations=1), budget):
@@ -38,8 +38,10 @@ def test_a_population_method_stops_at_its_deadline_with_its_best_point(name):
     result = optimizer.minimize(slow_sphere, bounds, np.random.default_rng(0), budget)
     elapsed = time.perf_counter() - start
     assert result.message == "deadline reached"
-    assert 1 <= result.nit < 10  # a few 2 ms iterations fit, not ten thousand
-    assert elapsed < 0.01 + 0.05  # checked between iterations: at most one overruns
+    # a few dozen 2 ms iterations fit, not ten thousand; the margins leave room for a loaded
+    # machine, where a 2 ms sleep can take several
+    assert 1 <= result.nit < 100
+    assert elapsed < 0.05 + 0.1  # checked between iterations: at most one overruns
     assert result.fun == result.history_fun[-1] == slow_sphere(result.x[None])[0]
 
 
