@@ -137,7 +137,7 @@ def test_evaluation_budget_is_met_exactly(evaluations: int) -> None:
     assert np.all(res.history_nfev <= evaluations)
 
 
-@pytest.mark.parametrize(("evaluations", "iterations"), [(100, 50), (1000, 5), (95, 2), (2000, 0)])
+@pytest.mark.parametrize(("evaluations", "iterations"), [(100, 50), (1000, 5), (95, 2), (2000, 1)])
 def test_both_limits_never_exceeded(evaluations: int, iterations: int) -> None:
     rec = Recorder()
     budget = Budget(max_evaluations=evaluations, max_iterations=iterations)

@@ -26,6 +26,7 @@ overrides = { max_iterations = 3 }
 
 [[optimizers]]
 name = "modified-bso-no-chaos-replacement"
+label = "no-chaos-replacement-3"
 overrides = { max_iterations = 3 }
 
 [[scenarios]]
