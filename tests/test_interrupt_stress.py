@@ -80,6 +80,54 @@ def test_ctrl_c_inside_numbas_boxing_is_raised_after_the_call_returns():
     assert done.stdout.splitlines() == ["sums [0.0, 3.0]", "raised KeyboardInterrupt"]
 
 
+@pytest.mark.slow
+def test_ctrl_c_inside_numbas_unboxing_of_a_generator_is_raised_after_the_call_returns():
+    # numba unboxes a numpy Generator by calling ctypes.cast three times and reads what each
+    # returned without checking it: a Ctrl-C raised inside one crashed a run's first draw of
+    # standard normals (population.standard_normals); the profile hook stands in for the
+    # signal, at the first of those calls
+    script = textwrap.dedent("""
+        import ctypes, signal, sys, time
+        import numpy as np
+        from numba import njit
+        from formation_bench.pipeline.interrupts import raise_interrupt
+
+        @njit
+        def normals(rng, out):
+            for i in range(out.shape[0]):
+                out[i] = rng.standard_normal()
+
+        out = np.empty(4)
+        normals(np.random.default_rng(0), out)
+        signal.signal(signal.SIGINT, raise_interrupt)
+        pressed = []
+
+        def press(frame, event, arg):
+            if event == "call" and frame.f_code is ctypes.cast.__code__ and not pressed:
+                pressed.append(frame)
+                raise_interrupt(signal.SIGINT, frame)
+
+        try:
+            sys.setprofile(press)
+            try:
+                normals(np.random.default_rng(1), out)
+            finally:
+                sys.setprofile(None)
+            print("drawn", bool(np.isfinite(out).all()), len(pressed), flush=True)
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline:
+                pass
+            print("never interrupted", flush=True)
+        except BaseException as err:
+            print("raised", type(err).__name__, flush=True)
+    """)
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.splitlines() == ["drawn True 1", "raised KeyboardInterrupt"]
+
+
 SUITE = """\
 name = "interrupted"
 seeds = 30

@@ -9,7 +9,9 @@ exception raised there leaves the boxing in no defined state: it reached Python 
 ``SystemError`` ("returned a result with an exception set") holding the interrupt, or, at a
 compiled function's first return (numba's lookup of the type not yet memoised, so the next
 array's lookup catches a ``KeyError``, which replaces the interrupt), it was lost and the
-call returned a tuple holding ``NULL``: a segmentation fault when Python read it.
+call returned a tuple holding ``NULL``: a segmentation fault when Python read it. Unboxing a
+numpy ``Generator`` for a compiled draw, numba calls ``ctypes.cast`` three times and reads
+each result unchecked: an exception raised inside one is a segmentation fault at once.
 llvmlite's object-cache callbacks, which numba's compiler runs, print and drop an exception
 raised in them, so a Ctrl-C there was lost, and its bindings mark an LLVM object handed to
 LLVM as owned a statement after the C call that hands it over (an exception between them
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import _thread
 import contextlib
+import ctypes
 import os
 import signal
 import sys
@@ -55,9 +58,13 @@ def is_interrupt(error: BaseException) -> bool:
 
 def _unchecked_callbacks() -> set[CodeType]:
     """The Python functions that compiled code calls without checking for an exception (a
-    library not imported has run no compiled code)."""
+    library not imported has run no compiled code): numba's type lookup while it boxes an
+    array, and ``ctypes.cast``, which its unboxing of a numpy ``Generator`` calls three times
+    and whose failed result it then reads (a segmentation fault)."""
     serialize = sys.modules.get("numba.core.serialize")
-    return set() if serialize is None else {serialize._numba_unpickle.__code__}
+    if serialize is None:
+        return set()
+    return {serialize._numba_unpickle.__code__, ctypes.cast.__code__}
 
 
 def _llvm_bindings() -> str | None:
