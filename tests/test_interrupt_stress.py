@@ -33,12 +33,50 @@ from formation_bench.pipeline.record import Provenance, is_timing_column
 ROOT = Path(__file__).resolve().parent.parent
 
 
+PRESSED_INSIDE = """
+signal.signal(signal.SIGINT, raise_interrupt)
+pressed = []
+
+def press(frame, event, arg):
+    if event == "call" and frame.f_code is {target} and not pressed:
+        pressed.append(frame)
+        raise_interrupt(signal.SIGINT, frame)
+
+try:
+    sys.setprofile(press)
+    try:
+        result = {call}
+    finally:
+        sys.setprofile(None)
+    print({report}, flush=True)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        pass
+    print("never interrupted", flush=True)
+except BaseException as err:
+    print("raised", type(err).__name__, flush=True)
+"""
+"""A script's end that presses Ctrl-C the first time Python enters the function whose code is
+``target`` during ``call`` (a profile hook standing in for the signal, so that the moment is
+exact), prints ``report`` if the call returns, and then waits for the interrupt."""
+
+
+def printed_when_pressed_inside(setup: str, target: str, call: str, report: str) -> list[str]:
+    """What the script ``setup`` + :data:`PRESSED_INSIDE` prints, run in a new process that
+    must end by itself (no death by a signal)."""
+    script = textwrap.dedent(setup) + PRESSED_INSIDE.format(target=target, call=call, report=report)
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    return done.stdout.splitlines()
+
+
 @pytest.mark.slow
 def test_ctrl_c_inside_numbas_boxing_is_raised_after_the_call_returns():
-    # the handler runs where Python found the main thread: here inside numba's callback that
-    # fetches an array's type while boxing a compiled function's first result (a profile
-    # hook stands in for the signal, so the moment is exact)
-    script = textwrap.dedent("""
+    # inside numba's callback that fetches an array's type while boxing a compiled
+    # function's first result
+    setup = """
         import signal, sys, time
         import numpy as np
         from numba import njit
@@ -50,43 +88,20 @@ def test_ctrl_c_inside_numbas_boxing_is_raised_after_the_call_returns():
             return np.zeros(n), np.ones(n)
 
         pair.compile("(int64,)")
-        signal.signal(signal.SIGINT, raise_interrupt)
-        pressed = []
-
-        def press(frame, event, arg):
-            if event == "call" and frame.f_code is serialize._numba_unpickle.__code__:
-                if not pressed:
-                    pressed.append(frame)
-                    raise_interrupt(signal.SIGINT, frame)
-
-        try:
-            sys.setprofile(press)
-            try:
-                result = pair(3)
-            finally:
-                sys.setprofile(None)
-            print("sums", [float(a.sum()) for a in result], flush=True)
-            deadline = time.monotonic() + 10
-            while time.monotonic() < deadline:
-                pass
-            print("never interrupted", flush=True)
-        except BaseException as err:
-            print("raised", type(err).__name__, flush=True)
-    """)
-    done = subprocess.run(
-        [sys.executable, "-c", script], capture_output=True, text=True, timeout=300
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
-    assert done.stdout.splitlines() == ["sums [0.0, 3.0]", "raised KeyboardInterrupt"]
+    """
+    printed = printed_when_pressed_inside(
+        setup, "serialize._numba_unpickle.__code__", "pair(3)",
+        '"sums", [float(a.sum()) for a in result]',
+    )  # fmt: skip
+    assert printed == ["sums [0.0, 3.0]", "raised KeyboardInterrupt"]
 
 
 @pytest.mark.slow
 def test_ctrl_c_inside_numbas_unboxing_of_a_generator_is_raised_after_the_call_returns():
     # numba unboxes a numpy Generator by calling ctypes.cast three times and reads what each
     # returned without checking it: a Ctrl-C raised inside one crashed a run's first draw of
-    # standard normals (population.standard_normals); the profile hook stands in for the
-    # signal, at the first of those calls
-    script = textwrap.dedent("""
+    # standard normals (population.standard_normals)
+    setup = """
         import ctypes, signal, sys, time
         import numpy as np
         from numba import njit
@@ -96,36 +111,15 @@ def test_ctrl_c_inside_numbas_unboxing_of_a_generator_is_raised_after_the_call_r
         def normals(rng, out):
             for i in range(out.shape[0]):
                 out[i] = rng.standard_normal()
+            return out
 
-        out = np.empty(4)
-        normals(np.random.default_rng(0), out)
-        signal.signal(signal.SIGINT, raise_interrupt)
-        pressed = []
-
-        def press(frame, event, arg):
-            if event == "call" and frame.f_code is ctypes.cast.__code__ and not pressed:
-                pressed.append(frame)
-                raise_interrupt(signal.SIGINT, frame)
-
-        try:
-            sys.setprofile(press)
-            try:
-                normals(np.random.default_rng(1), out)
-            finally:
-                sys.setprofile(None)
-            print("drawn", bool(np.isfinite(out).all()), len(pressed), flush=True)
-            deadline = time.monotonic() + 10
-            while time.monotonic() < deadline:
-                pass
-            print("never interrupted", flush=True)
-        except BaseException as err:
-            print("raised", type(err).__name__, flush=True)
-    """)
-    done = subprocess.run(
-        [sys.executable, "-c", script], capture_output=True, text=True, timeout=300
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
-    assert done.stdout.splitlines() == ["drawn True 1", "raised KeyboardInterrupt"]
+        normals(np.random.default_rng(0), np.empty(4))
+    """
+    printed = printed_when_pressed_inside(
+        setup, "ctypes.cast.__code__", "normals(np.random.default_rng(1), np.empty(4))",
+        '"drawn", bool(np.isfinite(result).all()), len(pressed)',
+    )  # fmt: skip
+    assert printed == ["drawn True 1", "raised KeyboardInterrupt"]
 
 
 SUITE = """\
