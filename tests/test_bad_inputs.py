@@ -588,7 +588,8 @@ def test_a_folder_that_is_not_writable_is_refused(tmp_path, monkeypatch, capsys)
     err = capsys.readouterr().err
     assert (
         err.strip()
-        == f"formation-bench run: error: --out {locked / 'run'}: {locked} is not writable"
+        == f"formation-bench run: error: --out {locked / 'run'}: {locked} is not writable "
+        "(read-only or immutable)"
     )
     assert list(locked.iterdir()) == []
 

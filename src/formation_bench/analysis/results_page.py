@@ -241,7 +241,7 @@ def check_page(page: Path, results_dir: Path, report_folder: Path, *, overwrite:
     immutable), or an existing file that is not a page this command wrote, or is one and
     ``--overwrite`` is not given."""
     from formation_bench.experiments.store import RUNS, SCORE, TRACES
-    from formation_bench.pipeline.staging import OutputError
+    from formation_bench.pipeline.staging import OutputError, unwritable_parent
 
     def refused(reason: str) -> OutputError:
         return OutputError(f"--page {page}: {reason}")
@@ -256,13 +256,9 @@ def check_page(page: Path, results_dir: Path, report_folder: Path, *, overwrite:
                 f"is inside {folder}, which belongs to the results folder's store or to the "
                 "report folder (replaced as a whole by --overwrite); give a file outside them"
             )
-    ancestor = where.parent
-    while not ancestor.exists():
-        ancestor = ancestor.parent
-    if not ancestor.is_dir():
-        raise refused(f"{ancestor} is a file, not a folder")
-    if not os.access(ancestor, os.W_OK | os.X_OK):
-        raise refused(f"{ancestor} is not writable (read-only or immutable)")
+    problem = unwritable_parent(where)
+    if problem is not None:
+        raise refused(problem)
     if not os.path.lexists(page):
         return
     if not where.is_file():

@@ -87,6 +87,20 @@ def storage_advice(err: OSError) -> str:
     return "make it writable or choose another folder, then run the same command again"
 
 
+def unwritable_parent(path: Path) -> str | None:
+    """Why nothing can be created at ``path``: its nearest existing ancestor is a file, or is
+    not writable (read-only or immutable, which ``os.access`` sees even as root); None if it
+    can be."""
+    ancestor = path.parent if path.parent != Path("") else Path(".")
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        return f"{ancestor} is a file, not a folder"
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        return f"{ancestor} is not writable (read-only or immutable)"
+    return None
+
+
 def check_output_folder(out: Path, *, overwrite: bool, option: str = "--out") -> None:
     """Refuse an output path that is a file, under a file, not writable, or non-empty."""
     if out.is_symlink() and not out.exists():
@@ -96,14 +110,9 @@ def check_output_folder(out: Path, *, overwrite: bool, option: str = "--out") ->
         )
     if out.exists() and not out.is_dir():
         raise OutputError(f"{option} {out}: is a file, not a folder")
-    parent = out.parent if out.parent != Path("") else Path(".")
-    ancestor = parent
-    while not ancestor.exists():
-        ancestor = ancestor.parent
-    if not ancestor.is_dir():
-        raise OutputError(f"{option} {out}: {ancestor} is a file, not a folder")
-    if not os.access(ancestor, os.W_OK | os.X_OK):
-        raise OutputError(f"{option} {out}: {ancestor} is not writable")
+    problem = unwritable_parent(out)
+    if problem is not None:
+        raise OutputError(f"{option} {out}: {problem}")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
         raise OutputError(
             f"{option} {out}: folder exists and is not empty; choose another folder or add "
