@@ -132,6 +132,29 @@ def check_choice(owner: str, name: str, value: object, choices: Iterable[str]) -
 
 
 @dataclasses.dataclass(frozen=True)
+class Search:
+    """What is worth searching for a setting, beside what is valid (pymoo's ``bounds`` beside
+    its ``strict``): a tuner searches only settings declared with one.
+
+    For an ``int`` or ``real`` setting, ``low`` and ``high`` are required and, like the
+    validity limits, may name an earlier field or be ``f(obj) -> number``; they are resolved
+    against the configuration being tuned when the search space is built, and the resolved
+    range must lie inside the valid one. For a ``bool``, ``enum`` or ``choice`` setting,
+    ``choices`` (None: every allowed value) lists the values searched, as they are written on
+    the command line.
+    """
+
+    low: Limit = None
+    """Smallest value searched (int and real settings)."""
+    high: Limit = None
+    """Largest value searched (int and real settings)."""
+    log: bool = False
+    """Search on a log scale (both ends then must be > 0)."""
+    choices: tuple[Any, ...] | None = None
+    """The values searched (bool, enum and choice settings); None: every allowed value."""
+
+
+@dataclasses.dataclass(frozen=True)
 class Setting:
     """What :func:`setting` records in a field's metadata."""
 
@@ -154,6 +177,8 @@ class Setting:
     """The allowed values in words, for a ``custom`` kind."""
     kernel: bool = False
     """The compiled kernels read this field (see :func:`kernel_settings_class`)."""
+    search: Search | None = None
+    """What a tuner searches (None: the setting is not tuned)."""
 
 
 def setting(
@@ -170,6 +195,7 @@ def setting(
     check: Callable[[str, str, Any], Any] | None = None,
     allowed: str = "",
     kernel: bool = False,
+    search: Search | None = None,
 ) -> Any:
     """A dataclass field with its default, allowed values and one-line doc.
 
@@ -181,12 +207,15 @@ def setting(
     ``allowed`` text (``custom``: tuples and other structured values, checked by
     ``check`` or by the class's own code). ``high`` (and ``low``) may name an
     earlier field (``high="population_size"``) or be ``f(obj) -> limit``.
-    ``optional`` also allows None.
+    ``optional`` also allows None. ``search`` declares the range a tuner searches
+    (:class:`Search`); a setting without one is not tuned.
     """
     spec = _make_setting(
         default, doc, low, high, low_open, high_open, kind, optional, choices, check, allowed,
         kernel,
     )  # fmt: skip
+    if search is not None:
+        spec = dataclasses.replace(spec, search=_checked_search(spec, search))
     return dataclasses.field(default=default, metadata={METADATA_KEY: spec})
 
 
@@ -228,6 +257,25 @@ def _make_setting(
         name, doc, low, high, low_open, high_open, optional, enum_type, choices, check, allowed,
         kernel,
     )  # fmt: skip
+
+
+def _checked_search(spec: Setting, search: Search) -> Search:
+    if not isinstance(search, Search):
+        raise TypeError(f"search must be a formation_bench.fields.Search, got {search!r}")
+    if spec.kind in ("int", "real"):
+        if search.low is None or search.high is None or search.choices is not None:
+            raise ValueError(f"the search of an {spec.kind} setting needs low and high only")
+        numeric = all(isinstance(v, int | float) for v in (search.low, search.high))
+        if numeric and not search.low < search.high:  # type: ignore[operator]
+            raise ValueError(f"search low must be below high, got {search.low}, {search.high}")
+        if search.log and numeric and search.low <= 0:  # type: ignore[operator]
+            raise ValueError(f"a log-scale search needs low > 0, got {search.low}")
+    elif spec.kind in ("bool", "enum", "choice"):
+        if search.low is not None or search.high is not None or search.log:
+            raise ValueError(f"the search of a {spec.kind} setting takes choices only")
+    else:
+        raise ValueError(f"a {spec.kind} setting cannot be searched")
+    return search
 
 
 def declared(field: dataclasses.Field) -> Setting | None:
