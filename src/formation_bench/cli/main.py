@@ -46,6 +46,7 @@ from formation_bench.cli.common import (
     set_error,
 )
 from formation_bench.cli.sweep_commands import add_sweep_commands
+from formation_bench.cli.tune_command import add_tune_command
 from formation_bench.environment import EnvironmentValueError, check_environment
 from formation_bench.fields import member_text
 from formation_bench.mpc.loop import ProgressCallback
@@ -590,6 +591,7 @@ def build_parser() -> _Parser:
     listing.set_defaults(func=cmd_list)
 
     add_sweep_commands(sub)
+    add_tune_command(sub)
     return parser
 
 
@@ -615,7 +617,7 @@ def _check_arguments(args: argparse.Namespace) -> None:
             _check_distinct("--seeds", args.seeds)
         if args.command == "score":
             _check_distinct("--budgets", args.budgets)
-        if args.command in ("sweep", "score") and getattr(args, "scheduler", None) is None:
+        if args.command in ("sweep", "score", "tune") and getattr(args, "scheduler", None) is None:
             check_jobs(args.jobs)
     except (LimitError, EnvironmentValueError) as err:
         raise UsageError(str(err)) from None
