@@ -1,6 +1,10 @@
 """A plugin for the tuning tests: ``tunable-pso``, PSO with search ranges on a few settings
 (one limit naming an earlier field, one log scale, one enumeration), so that the tests do not
-depend on the ranges the shipped optimisers declare."""
+depend on the ranges the shipped optimisers declare.
+
+Loaded with ``--plugin`` (in a subprocess or a worker) it registers the name; imported by a
+test under another module name it only defines the class, which the test puts in the
+registry for its own duration."""
 
 from dataclasses import dataclass
 
@@ -31,4 +35,8 @@ class TunablePSO(PSO):
     )  # fmt: skip
 
 
-register("tunable-pso", TunablePSO(), "PSO with searched settings (the tuning tests' plugin)")
+NAME = "tunable-pso"
+DESCRIPTION = "PSO with searched settings (the tuning tests' plugin)"
+
+if __name__.startswith("formation_bench_plugin_"):  # the module name --plugin gives a file
+    register(NAME, TunablePSO(), DESCRIPTION)

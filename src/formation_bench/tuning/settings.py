@@ -125,20 +125,31 @@ def shipped_suite_seeds() -> frozenset[int]:
 
 
 def check_settings(settings: TuningSettings) -> Suite | None:
-    """Refuse, naming the option, what a tuning may not do; returns the loop objective's
-    suite (None for the solve objective)."""
+    """Refuse, naming the option, what a tuning may not do (the data first, then the
+    optimiser); returns the loop objective's suite (None for the solve objective)."""
+    suite = check_data(settings)
+    check_optimizer(settings.optimizer)
+    return suite
+
+
+def check_optimizer(name: str) -> None:
+    """Refuse a tuned variant, and an optimiser with nothing to search."""
     from formation_bench.tuning.space import search_space
 
-    if is_tuned(settings.optimizer):
+    if is_tuned(name):
         raise TuningError(
-            f"--optimizer: {settings.optimizer!r} is itself a tuned variant; tune its base "
+            f"--optimizer: {name!r} is itself a tuned variant; tune its base "
             "optimizer instead"
         )
-    if not search_space(OPTIMIZERS[settings.optimizer].optimizer):
+    if not search_space(OPTIMIZERS[name].optimizer):
         raise TuningError(
-            f"--optimizer: {settings.optimizer!r} has no searched settings; declare search= on "
+            f"--optimizer: {name!r} has no searched settings; declare search= on "
             "the settings of its configuration (formation_bench.fields.Search) to tune it"
         )
+
+
+def check_data(settings: TuningSettings) -> Suite | None:
+    """Refuse a test-split problem and a seed of the results pages."""
     used = shipped_suite_seeds() | set(SCORE_RUN_SEEDS)
     if settings.seed in used:
         raise TuningError(
