@@ -53,6 +53,11 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from formation_bench.tuning.settings import TuningError, TuningSettings, check_settings
     from formation_bench.tuning.study import TrialFailed, progress_report, run_tuning
 
+    out = Path(args.out)
+    try:
+        check_output_folder(out, overwrite=True)  # a tuning resumes in its folder, as a sweep
+    except OutputError as err:
+        raise UsageError(str(err)) from None
     if args.optimizer not in OPTIMIZERS:
         allowed = ", ".join(sorted(OPTIMIZERS))
         raise UsageError(f"--optimizer: unknown name {args.optimizer!r}; allowed: {allowed}")
@@ -64,11 +69,6 @@ def cmd_tune(args: argparse.Namespace) -> int:
         raise UsageError(str(err)) from None
     except ValueError as err:
         raise UsageError(_option_error(str(err))) from None
-    out = Path(args.out)
-    try:
-        check_output_folder(out, overwrite=True)  # a tuning resumes in its folder, as a sweep
-    except OutputError as err:
-        raise UsageError(str(err)) from None
     compile_notice(
         {args.optimizer: get_optimizer(args.optimizer)},
         harness=settings.objective.value == "loop",
