@@ -50,6 +50,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     if importlib.util.find_spec("optuna") is None:
         raise UsageError(f"tune needs Optuna, which is not installed: {INSTALL_HINT}")
     from formation_bench import plugins
+    from formation_bench.experiments.errors import StoreError
     from formation_bench.tuning.settings import TuningError, TuningSettings, check_settings
     from formation_bench.tuning.study import TrialFailed, progress_report, run_tuning
 
@@ -80,7 +81,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
                 settings, out, jobs=args.jobs, plugins=plugins.loaded_plugins(),
                 command=command, report=report,
             )  # fmt: skip
-    except TuningError as err:
+    except (TuningError, StoreError) as err:
         raise UsageError(str(err)) from None
     except TrialFailed as err:
         print(f"formation-bench tune: error: {err}", file=sys.stderr)

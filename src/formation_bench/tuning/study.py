@@ -48,6 +48,8 @@ SAMPLER_STREAM = 0
 """The child of the tuning's SeedSequence the sampler's seeds come from (one per trial)."""
 SETTINGS_ATTR = "formation_bench_settings"
 """The study's user attribute holding the settings it was made with (less ``trials``)."""
+JOURNAL_LOCK_GRACE_S = 1
+"""Seconds after which a journal lock left by a killed tuning is taken as stale."""
 Report = Callable[[int, int, float, float], None]
 """``report(done, total, best so far, seconds of the batch)`` after each batch."""
 
@@ -88,11 +90,15 @@ def open_study(out: Path, settings: TuningSettings) -> optuna.Study:
     settings."""
     import optuna
     from optuna.storages import JournalStorage
-    from optuna.storages.journal import JournalFileBackend
+    from optuna.storages.journal import JournalFileBackend, JournalFileSymlinkLock
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     out.mkdir(parents=True, exist_ok=True)
-    storage = JournalStorage(JournalFileBackend(str(journal_path(out, settings))))
+    path = str(journal_path(out, settings))
+    # the folder's lock already keeps other tunings out, so the journal's own lock can only be
+    # left stale by a killed process: broken after a second instead of Optuna's 30
+    lock = JournalFileSymlinkLock(path, grace_period=JOURNAL_LOCK_GRACE_S)
+    storage = JournalStorage(JournalFileBackend(path, lock_obj=lock))
     study = optuna.create_study(
         study_name=settings.variant_name, storage=storage, direction="minimize",
         load_if_exists=True,
@@ -189,7 +195,22 @@ def run_tuning(
     report: Report | None = None,
 ) -> TuningOutcome:
     """Tune ``settings.optimizer`` into ``out`` (resuming what is stored there), then write
-    ``<out>/<NAME>.json``; a finished tuning's file is returned as it is."""
+    ``<out>/<NAME>.json``; a finished tuning's file is returned as it is. Holds the folder's
+    lock (as a sweep does), so a second tuning into it is refused instead of racing."""
+    from formation_bench.experiments.store import ResultStore
+
+    with ResultStore(out).lock():
+        return _tune(settings, out, jobs, plugins, command, report)
+
+
+def _tune(
+    settings: TuningSettings,
+    out: Path,
+    jobs: int,
+    plugins: tuple[str, ...],
+    command: str,
+    report: Report | None,
+) -> TuningOutcome:
     import optuna
 
     path = out / f"{settings.variant_name}.json"
