@@ -48,7 +48,7 @@ SAMPLER_STREAM = 0
 """The child of the tuning's SeedSequence the sampler's seeds come from (one per trial)."""
 SETTINGS_ATTR = "formation_bench_settings"
 """The study's user attribute holding the settings it was made with (less ``trials``)."""
-JOURNAL_LOCK_GRACE_S = 1
+JOURNAL_LOCK_GRACE_S = 3
 """Seconds after which a journal lock left by a killed tuning is taken as stale."""
 Report = Callable[[int, int, float, float], None]
 """``report(done, total, best so far, seconds of the batch)`` after each batch."""
@@ -96,7 +96,8 @@ def open_study(out: Path, settings: TuningSettings) -> optuna.Study:
     out.mkdir(parents=True, exist_ok=True)
     path = str(journal_path(out, settings))
     # the folder's lock already keeps other tunings out, so the journal's own lock can only be
-    # left stale by a killed process: broken after a second instead of Optuna's 30
+    # left stale by a killed process: broken after 3 s (the least Optuna takes without a
+    # warning) instead of its 30
     lock = JournalFileSymlinkLock(path, grace_period=JOURNAL_LOCK_GRACE_S)
     storage = JournalStorage(JournalFileBackend(path, lock_obj=lock))
     study = optuna.create_study(
