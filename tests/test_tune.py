@@ -103,10 +103,11 @@ def test_a_searched_range_is_clipped_into_the_valid_one():
 
 
 def test_a_tuning_stopped_within_a_batch_resumes_to_the_uninterrupted_result(tunable, tmp_path):
-    whole = run_tuning(quick(trials=5), tmp_path / "whole")
-    # trials 0-2 stored, then trial 3 (the second of batch 2-3) is asked again on resume
-    run_tuning(quick(trials=3), tmp_path / "resumed")
-    resumed = run_tuning(quick(trials=5), tmp_path / "resumed")
+    # past TPE's 10 random start-up trials, so that the trials before a batch matter
+    whole = run_tuning(quick(trials=13), tmp_path / "whole")
+    # trials 0-10 stored, then trial 11 (the second of batch 10-11) is asked again on resume
+    run_tuning(quick(trials=11), tmp_path / "resumed")
+    resumed = run_tuning(quick(trials=13), tmp_path / "resumed")
     assert resumed.computed
     assert result_of(resumed.path) == result_of(whole.path)
     assert whole.data["history"][0] == whole.data["default_value"]
@@ -138,15 +139,15 @@ def test_a_folder_holding_other_settings_is_refused(tunable, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_the_same_result_with_one_and_two_workers(tunable, tmp_path):
-    one = run_tuning(quick(), tmp_path / "one", jobs=1)
-    two = run_tuning(quick(), tmp_path / "two", jobs=2, plugins=(str(TUNABLE),))
+    one = run_tuning(quick(trials=12), tmp_path / "one", jobs=1)
+    two = run_tuning(quick(trials=12), tmp_path / "two", jobs=2, plugins=(str(TUNABLE),))
     assert result_of(one.path) == result_of(two.path)
 
 
 def _tune_command(out: Path) -> list[str]:
     return [
         sys.executable, "-m", "formation_bench.cli", "--plugin", str(TUNABLE), "tune",
-        "--optimizer", "tunable-pso", "--trials", "10", "--batch", "2", "--problems", "40",
+        "--optimizer", "tunable-pso", "--trials", "14", "--batch", "2", "--problems", "40",
         "--max-evaluations", "300", "--seed", "100", "--jobs", "1", "--no-progress",
         "--out", str(out),
     ]  # fmt: skip
@@ -171,8 +172,9 @@ def test_a_tuning_killed_at_several_points_ends_as_an_uninterrupted_one(tmp_path
     whole = tmp_path / "whole"
     subprocess.run(_tune_command(whole), check=True, capture_output=True)
     resumed = tmp_path / "resumed"
-    first = random.Random(3).choice((2, 4))  # a kill point in the first half, then another
-    for stored in (first, first + 4):
+    # a kill point among TPE's random start-up trials, then one where it models the trials
+    first = random.Random(3).choice((4, 6))
+    for stored in (first, first + 6):
         _killed_after(resumed, stored)
     done = subprocess.run(_tune_command(resumed), check=True, capture_output=True, text=True)
     assert "tunable-pso-tuned" in done.stdout
