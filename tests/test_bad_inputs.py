@@ -23,6 +23,7 @@ from formation_bench.optimizers import OPTIMIZERS, Optimizer
 from formation_bench.pipeline.checks import MAX_LABEL_CHARS
 
 RUN = ["run", "--optimizer", "pso", "--no-figures"]
+TUNE = ["tune", "--optimizer", "pso"]
 SHORT = ["--set", "n_steps=3", "--set", "settle_time_s=0"]
 
 # (arguments with {out}, {file}, {dir}, {suite}, {bad_utf8}, {bad_toml} placeholders, needle)
@@ -115,6 +116,20 @@ CASES = [
     (["sweep", "paper", "--out", "{out}", "--scheduler", "not an address"], "--scheduler"),
     (["sweep", "paper", "--out", "{out}", "--scheduler", "http://host:8786"], "--scheduler"),
     (["sweep", "paper", "--out", "{out}", "--scheduler", "tcp://host:99999"], "--scheduler"),
+    # tune: the data a tuning may not touch, then its own options
+    ([*TUNE, "--split", "test", "--out", "{out}"], "--split"),
+    ([*TUNE, "--seed", "0", "--out", "{out}"], "--seed"),
+    ([*TUNE, "--objective", "loop", "--seeds", "1000", "12", "--out", "{out}"], "--seeds"),
+    ([*TUNE, "--objective", "loop", "--seeds", "1000", "1000", "--out", "{out}"], "--seeds"),
+    ([*TUNE, "--objective", "loop", "--suite", "nope", "--out", "{out}"], "--suite"),
+    ([*TUNE, "--objective", "loop", "--metric", "colour", "--out", "{out}"], "--metric"),
+    ([*TUNE, "--objective", "best", "--out", "{out}"], "--objective"),
+    ([*TUNE, "--trials", "0", "--out", "{out}"], "--trials"),
+    ([*TUNE, "--batch", "x", "--out", "{out}"], "--batch"),
+    ([*TUNE, "--max-evaluations", "0", "--out", "{out}"], "--max-evaluations"),
+    ([*TUNE, "--jobs", "0", "--out", "{out}"], "--jobs"),
+    ([*TUNE, "--out", "{file}"], "is a file"),
+    (["tune", "--optimizer", "psoo", "--out", "{out}"], "--optimizer"),
 ]  # fmt: skip
 
 SCORE = ["score", "--optimizer", "pso"]
