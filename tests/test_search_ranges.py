@@ -6,19 +6,23 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 from helpers import Recorder, budget_settings
 
+from formation_bench.cli.main import shown_value
 from formation_bench.fields import (
     Setting,
     check_value,
     declared,
     member_text,
     search_bounds,
+    search_text,
     searched_values,
 )
 from formation_bench.optimizers import OPTIMIZERS, Bounds, Budget, Optimizer
@@ -235,3 +239,34 @@ def test_each_searched_setting_changes_a_small_solve(name: str):
             same = changed.shape == base.shape and np.array_equal(changed, base)
             assert same == inert, f"{name}: {field} = {value} {'changes' if inert else 'keeps'}"
         assert math.isfinite(base[-1])
+
+
+# --- the explanation page's tables are the declarations ----------------------------------------
+
+PAGE = Path(__file__).parents[1] / "docs" / "explanation" / "optimizers.md"
+
+
+def page_tables() -> dict[str, list[tuple[str, str, str]]]:
+    """``{registered name: [(setting, searched, default)]}`` of each table under "What a tuner
+    searches", by the first name in its heading."""
+    section = PAGE.read_text().split("## What a tuner searches\n", 1)[1].split("\n## ", 1)[0]
+    tables = {}
+    for part in section.split("\n### ")[1:]:
+        heading, body = part.split("\n", 1)
+        name = re.search(r"`([^`]+)`", heading).group(1)  # type: ignore[union-attr]
+        rows = [line.strip("|").split("|") for line in body.splitlines() if line.startswith("| `")]
+        tables[name] = [tuple(cell.strip().strip("`") for cell in row) for row in rows]
+    return tables
+
+
+def test_the_page_shows_every_family_s_search_as_declared():
+    tables = page_tables()
+    assert set(FAMILIES) <= set(tables)
+    for name, rows in tables.items():
+        optimizer = OPTIMIZERS[name].optimizer
+        declared_rows = [
+            (field, search_text(spec).removeprefix("searched: "),
+             shown_value(getattr(optimizer, field)))
+            for field, spec in searched(optimizer)
+        ]  # fmt: skip
+        assert rows == declared_rows, name
