@@ -449,11 +449,9 @@ def describe_fields(obj_or_class: Any) -> list[FieldInfo]:
             if isinstance(field.type, str)
             else getattr(field.type, "__name__", str(field.type))
         )
+        allowed, search = allowed_text(spec), search_text(spec)
         out.append(
-            FieldInfo(
-                field.name, type_text, field.default, allowed_text(spec), spec.doc, value,
-                search_text(spec),
-            )  # fmt: skip
+            FieldInfo(field.name, type_text, field.default, allowed, spec.doc, value, search)
         )
     return out
 
