@@ -144,6 +144,8 @@ def test_every_family_searches_something(family: str):
 def test_the_settings_that_make_a_variant_are_not_searched(name: str):
     optimizer = OPTIMIZERS[name].optimizer
     cls = type(optimizer)
+    if cls.__name__ not in VARIANT_SWITCHES:
+        pytest.skip(f"{cls.__name__} is not one of this package's families (a plugin's)")
     switches = set(VARIANT_SWITCHES[cls.__name__])
     assert switches <= {f.name for f in dataclasses.fields(optimizer)}, cls.__name__
     assert not switches & {field for field, _ in searched(optimizer)}, name

@@ -11,7 +11,8 @@ members) with one message shape, "<Class>.<field> must be ..., got <value>".
 :func:`describe_fields` lists the declarations for the command line, and
 :func:`kernel_settings_class` turns the fields marked ``kernel=True`` into the
 namedtuple a compiled kernel reads by name, so the kernel's settings cannot
-drift from the dataclass.
+drift from the dataclass. A setting worth tuning also declares the range a tuner searches
+(:class:`Search`), which :func:`search_text` puts in words.
 
 Neutral on purpose: this module imports nothing from the optimisers, the MPC
 harness or the benchmarks, so all of them can declare their settings with it.
