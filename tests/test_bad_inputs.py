@@ -3,7 +3,6 @@ field, path or variable, no traceback, and nothing written that looks finished."
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import re
 import select
@@ -15,11 +14,11 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from helpers import budget_settings
 
 from formation_bench.cli.main import main
 from formation_bench.environment import DECLARED
-from formation_bench.fields import describe_fields
-from formation_bench.optimizers import OPTIMIZERS, Optimizer
+from formation_bench.optimizers import OPTIMIZERS
 from formation_bench.pipeline.checks import MAX_LABEL_CHARS
 
 RUN = ["run", "--optimizer", "pso", "--no-figures"]
@@ -188,23 +187,6 @@ BOUNDARY = [
     (["--plugin", "{pso_plugin}", "report", "{results}"], "'pso' is already registered"),
 ]  # fmt: skip
 CASES += BOUNDARY
-
-
-def budget_settings(optimizer: Optimizer) -> list[str]:
-    """The settings an optimiser's own budget is made of: each integer field whose value its
-    ``default_budget`` reports as its iterations or evaluations."""
-    found = []
-    for info in describe_fields(optimizer):
-        if type(info.value) is not int:
-            continue
-        try:
-            changed = dataclasses.replace(optimizer, **{info.name: info.value + 1})
-        except (ValueError, TypeError):  # a limit of another field
-            continue
-        budget = changed.default_budget
-        if info.value + 1 in (budget.max_iterations, budget.max_evaluations):
-            found.append(info.name)
-    return found
 
 
 ZERO_REFUSED = "--set max_iterations: expected an integer >= 1, got 0"

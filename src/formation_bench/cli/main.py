@@ -235,7 +235,7 @@ def _list_fields(name: str) -> int:
     if kind == "optimizer":
         for line in tuned_provenance_lines(name):
             print(f"  {line}")
-    _print_fields(obj, describe_fields)
+    _print_fields(obj, describe_fields, tunable=kind == "optimizer")
     return 0
 
 
@@ -268,15 +268,17 @@ def tuned_provenance_lines(name: str) -> list[str]:
     ]
 
 
-def _print_fields(obj: Any, describe_fields: Any) -> None:
-    """Each setting of ``obj``; a group of settings (a field holding a config dataclass) as
-    its settings, set by their own names."""
+def _print_fields(obj: Any, describe_fields: Any, tunable: bool) -> None:
+    """Each setting of ``obj``, with what a tuner searches of it when ``tunable`` (an
+    optimiser's); a group of settings (a field holding a config dataclass) as its settings,
+    set by their own names."""
     for info in describe_fields(obj):
         if dataclasses.is_dataclass(info.value) and not isinstance(info.value, type):
             print(f"  [{info.name}] {info.doc}")
-            _print_fields(info.value, describe_fields)
+            _print_fields(info.value, describe_fields, tunable)
             continue
-        print(f"  {info.name} = {shown_value(info.value)}  ({info.type}; {info.allowed})")
+        search = f"; {info.search}" if tunable else ""
+        print(f"  {info.name} = {shown_value(info.value)}  ({info.type}; {info.allowed}{search})")
         print(f"      {info.doc}")
 
 
@@ -618,7 +620,8 @@ def build_parser() -> _Parser:
     listing.add_argument(
         "--fields",
         metavar="NAME",
-        help="the settable fields of one optimizer or scenario: value, allowed values, meaning",
+        help="the settable fields of one optimizer or scenario: value, allowed values, what a "
+        "tuner searches (an optimizer's), meaning",
     )
     listing.set_defaults(func=cmd_list)
 
