@@ -287,7 +287,8 @@ def test_a_tuned_file_registers_and_lists_its_values_and_provenance(
     assert data["name"] == "tunable-pso-tuned" and data["base"] == tunable
     assert data["history"][0] == data["default_value"]
     assert data["best_value"] == min(data["history"])
-    assert data["values"]["max_iterations"] == (300 - 30) // 30  # the budget, in iterations
+    size = data["values"].get("population_size", 30)
+    assert data["values"]["max_iterations"] == (300 - size) // size  # the budget, in iterations
     monkeypatch.setattr(OPTIMIZERS, "_entries", dict(OPTIMIZERS._entries))
     monkeypatch.setattr("formation_bench.optimizers.tuned._TUNED", dict(_TUNED))
     tuned = register_tuned(outcome.path)

@@ -1,6 +1,6 @@
-"""A plugin for the tuning tests: ``tunable-pso``, PSO with search ranges on a few settings
-(one limit naming an earlier field, one log scale, one enumeration), so that the tests do not
-depend on the ranges the shipped optimisers declare.
+"""A plugin for the tuning tests: ``tunable-pso``, PSO with its own search ranges on a few
+settings (one limit naming an earlier field, one log scale, one enumeration) beside the ones it
+inherits from PSO, so that the tests see every kind of range whatever PSO declares.
 
 Loaded with ``--plugin`` (in a subprocess or a worker) it registers the name; imported by a
 test under another module name it only defines the class, which the test puts in the
