@@ -7,7 +7,9 @@ report command that writes the page, the date of the runs, the formation-bench v
 the machine (CPU model). Then come the report's tables: for a suite folder the headline
 metrics of every block (:func:`~formation_bench.analysis.report.to_markdown`) and the
 sections the report wrote (swarm, robustness, obstacles, paper budget, variant pairs); for a
-score folder the leaderboard as ``score.md`` ranks it. Every table is preceded by
+score folder the leaderboard as ``score.md`` ranks it; for a folder of tuned-variant files the
+tuning report (:mod:`~formation_bench.analysis.tuning_report`), its figure copied beside the
+page (:func:`tuning_image`). Every table is preceded by
 ``<!-- produced by: COMMAND -->``, a table with times also by the machine and the date
 (the documentation's convention for tables that must not go stale silently).
 """
