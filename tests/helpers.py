@@ -1,12 +1,15 @@
-"""What many tests share: a box, test functions, and a recording objective."""
+"""What many tests share: a box, test functions, a recording objective, and which settings
+make an optimiser's own budget."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import numpy as np
 
-from formation_bench.optimizers import Bounds
+from formation_bench.fields import describe_fields
+from formation_bench.optimizers import Bounds, Optimizer
 
 D = 10
 """Dimension of the shared test problems."""
@@ -53,3 +56,20 @@ class Recorder:
         if not self.batches:
             return np.zeros((0, D))
         return np.vstack(self.batches)
+
+
+def budget_settings(optimizer: Optimizer) -> list[str]:
+    """The settings an optimiser's own budget is made of: each integer field whose value its
+    ``default_budget`` reports as its iterations or evaluations."""
+    found = []
+    for info in describe_fields(optimizer):
+        if type(info.value) is not int:
+            continue
+        try:
+            changed = dataclasses.replace(optimizer, **{info.name: info.value + 1})
+        except (ValueError, TypeError):  # a limit of another field
+            continue
+        budget = changed.default_budget
+        if info.value + 1 in (budget.max_iterations, budget.max_evaluations):
+            found.append(info.name)
+    return found

@@ -20,6 +20,7 @@ HARNESS = (
     "formation_bench.pipeline",
     "formation_bench.instances",
     "formation_bench.experiments",
+    "formation_bench.tuning",
     "formation_bench.analysis",
     "formation_bench.cli",
 )
@@ -44,7 +45,7 @@ def imported_modules(path: Path, package: str) -> set[str]:
 
 # --- the module graph ----------------------------------------------------------------------
 
-LAYERS = ("optimizers", "mpc", "pipeline", "instances", "experiments", "analysis", "cli")
+LAYERS = ("optimizers", "mpc", "pipeline", "instances", "experiments", "tuning", "analysis", "cli")
 """The subpackages, each importing only from itself and those before it."""
 SHARED = ("fields", "plugins", "environment", "_version")
 """Modules beside the subpackages that every layer may import (as the package root)."""

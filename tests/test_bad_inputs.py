@@ -3,7 +3,6 @@ field, path or variable, no traceback, and nothing written that looks finished."
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import re
 import select
@@ -15,14 +14,15 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from helpers import budget_settings
 
 from formation_bench.cli.main import main
 from formation_bench.environment import DECLARED
-from formation_bench.fields import describe_fields
-from formation_bench.optimizers import OPTIMIZERS, Optimizer
+from formation_bench.optimizers import OPTIMIZERS
 from formation_bench.pipeline.checks import MAX_LABEL_CHARS
 
 RUN = ["run", "--optimizer", "pso", "--no-figures"]
+TUNE = ["tune", "--optimizer", "pso"]
 SHORT = ["--set", "n_steps=3", "--set", "settle_time_s=0"]
 
 # (arguments with {out}, {file}, {dir}, {suite}, {bad_utf8}, {bad_toml} placeholders, needle)
@@ -115,6 +115,20 @@ CASES = [
     (["sweep", "paper", "--out", "{out}", "--scheduler", "not an address"], "--scheduler"),
     (["sweep", "paper", "--out", "{out}", "--scheduler", "http://host:8786"], "--scheduler"),
     (["sweep", "paper", "--out", "{out}", "--scheduler", "tcp://host:99999"], "--scheduler"),
+    # tune: the data a tuning may not touch, then its own options
+    ([*TUNE, "--split", "test", "--out", "{out}"], "--split"),
+    ([*TUNE, "--seed", "0", "--out", "{out}"], "--seed"),
+    ([*TUNE, "--objective", "loop", "--seeds", "1000", "12", "--out", "{out}"], "--seeds"),
+    ([*TUNE, "--objective", "loop", "--seeds", "1000", "1000", "--out", "{out}"], "--seeds"),
+    ([*TUNE, "--objective", "loop", "--suite", "nope", "--out", "{out}"], "--suite"),
+    ([*TUNE, "--objective", "loop", "--metric", "colour", "--out", "{out}"], "--metric"),
+    ([*TUNE, "--objective", "best", "--out", "{out}"], "--objective"),
+    ([*TUNE, "--trials", "0", "--out", "{out}"], "--trials"),
+    ([*TUNE, "--batch", "x", "--out", "{out}"], "--batch"),
+    ([*TUNE, "--max-evaluations", "0", "--out", "{out}"], "--max-evaluations"),
+    ([*TUNE, "--jobs", "0", "--out", "{out}"], "--jobs"),
+    ([*TUNE, "--out", "{file}"], "is a file"),
+    (["tune", "--optimizer", "psoo", "--out", "{out}"], "--optimizer"),
 ]  # fmt: skip
 
 SCORE = ["score", "--optimizer", "pso"]
@@ -173,23 +187,6 @@ BOUNDARY = [
     (["--plugin", "{pso_plugin}", "report", "{results}"], "'pso' is already registered"),
 ]  # fmt: skip
 CASES += BOUNDARY
-
-
-def budget_settings(optimizer: Optimizer) -> list[str]:
-    """The settings an optimiser's own budget is made of: each integer field whose value its
-    ``default_budget`` reports as its iterations or evaluations."""
-    found = []
-    for info in describe_fields(optimizer):
-        if type(info.value) is not int:
-            continue
-        try:
-            changed = dataclasses.replace(optimizer, **{info.name: info.value + 1})
-        except (ValueError, TypeError):  # a limit of another field
-            continue
-        budget = changed.default_budget
-        if info.value + 1 in (budget.max_iterations, budget.max_evaluations):
-            found.append(info.name)
-    return found
 
 
 ZERO_REFUSED = "--set max_iterations: expected an integer >= 1, got 0"

@@ -156,3 +156,12 @@ def test_deadline_overhead_prints_a_row_per_optimiser(tmp_path, capsys, monkeypa
     for row in rows:
         assert row["per_iteration_s"] > 0 and row["completed"] >= 1
         assert row["long_iterations"] > row["completed"] or not row["deadline_binds"]
+
+
+def test_peer_pso_script_pairs_the_package_pso_with_mealpy_on_the_same_problems(capsys):
+    from perf import peer_pso
+
+    peer_pso.main(["--optimizers", "pso", "--problems", "3", "--budget", "300"])
+    printed = capsys.readouterr().out
+    assert "3 test problems, 300 evaluations, seed 0" in printed
+    assert "pso vs mealpy OriginalPSO: lower on" in printed and " of 3," in printed

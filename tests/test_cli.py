@@ -194,8 +194,18 @@ def test_list_fields_shows_values_ranges_and_docs(capsys):
     out = capsys.readouterr().out
     assert "weight_map = tent" in out and "n_clusters = 5" in out
     assert "integer in [1, population_size]" in out and "m, k-means clusters" in out
+    # what a tuner searches: ranges (field-dependent ones in words), choices, or nothing
+    assert "population_size = 30  (int; integer >= 2; searched: [4, 100] log)" in out
+    assert "searched: [2, min(population_size, 12)])" in out
+    assert "bound_handling = clip  (BoundHandling; one of clip, reflect, resample; " in out
+    assert "searched: clip, reflect, resample)" in out
+    assert (
+        "not tuned)\n      f_hmap" in out
+        and "max_iterations = 40  (int; integer >= 1; not tuned)" in out
+    )
     assert main(["list", "--fields", "paper"]) == 0
-    assert "settle_time_s = 10.0" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "settle_time_s = 10.0" in out and "tuned" not in out and "searched" not in out
     assert main(["list", "--fields", "nope"]) == 2
     assert "unknown optimizer or scenario 'nope'" in capsys.readouterr().err
 
@@ -284,7 +294,9 @@ def test_the_command_line_modules_import_one_way():
 
     assert imported("common") == set()
     assert imported("sweep_commands") == {"common"}
-    assert imported("main") == {"cli", "common", "sweep_commands"}  # cli: command_start
+    assert imported("tune_command") == {"common"}
+    # cli: command_start
+    assert imported("main") == {"cli", "common", "sweep_commands", "tune_command"}
     # command_start is the first import of the entry point's module, before anything heavy
     source = (Path(cli.__file__).parent / "main.py").read_text()
     first = next(line for line in source.splitlines() if line.startswith(("from ", "import ")))

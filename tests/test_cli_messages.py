@@ -18,7 +18,7 @@ from formation_bench.analysis.paper_budget import shipped_line
 from formation_bench.cli.common import first_sentence
 from formation_bench.cli.main import START_HINT, build_parser, main
 
-COMMANDS = ("reproduce", "run", "list", "sweep", "score", "report", "export-ioh")
+COMMANDS = ("reproduce", "run", "list", "sweep", "score", "report", "export-ioh", "tune")
 
 
 def command_line(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:

@@ -315,3 +315,64 @@ def test_the_registry_checks_declared_settings_and_refuses_undeclared_ones():
         assert "declared-bad-default" not in OPTIMIZERS and "undeclared" not in OPTIMIZERS
     finally:
         OPTIMIZERS.pop("declared-only", None)
+
+
+# --- what a tuner searches ---------------------------------------------------------------------
+
+
+def test_a_search_is_checked_against_the_kind_of_its_setting():
+    with pytest.raises(ValueError, match="the search of an int setting needs low and high only"):
+        setting(3, low=1, doc="A count", search=fields.Search(choices=(1, 2)))
+    with pytest.raises(ValueError, match="needs low and high only"):
+        setting(0.5, doc="A share", search=fields.Search(0.1))
+    with pytest.raises(ValueError, match="the search of a bool setting takes choices only"):
+        setting(True, doc="A switch", search=fields.Search(0, 1))
+    with pytest.raises(ValueError, match="the search of a enum setting takes choices only"):
+        setting(ChaoticMap.TENT, doc="A map", search=fields.Search(log=True))
+    with pytest.raises(ValueError, match="a custom setting cannot be searched"):
+        setting((1, 2), allowed="two integers", doc="A pair", search=fields.Search(0, 1))
+    with pytest.raises(TypeError, match=r"search must be a formation_bench\.fields\.Search"):
+        setting(3, low=1, doc="A count", search=(1, 5))  # type: ignore[arg-type]
+
+
+def test_a_search_needs_low_below_high_and_a_positive_low_on_a_log_scale():
+    with pytest.raises(ValueError, match="search low must be below high, got 5, 5"):
+        setting(5, low=1, doc="A count", search=fields.Search(5, 5))
+    with pytest.raises(ValueError, match=r"search low must be below high, got 0\.9, 0\.1"):
+        setting(0.5, doc="A share", search=fields.Search(0.9, 0.1))
+    with pytest.raises(ValueError, match=r"a log-scale search needs low > 0, got 0\.0"):
+        setting(0.5, doc="A share", search=fields.Search(0.0, 1.0, log=True))
+    # limits naming a field or computed from one are checked when the space is resolved
+    assert setting(2, low=1, doc="A count", search=fields.Search(1, "size")) is not None
+
+
+@dataclasses.dataclass(frozen=True)
+class Searched:
+    size: int = setting(8, low=2, doc="A size", search=fields.Search(4, 100, log=True))
+    count: int = setting(
+        3, low=1, high="size", doc="A count", search=fields.Search(2, lambda o: o.size // 2)
+    )
+    rate: float = setting(0.5, low=0.0, high=1.0, doc="A rate", search=fields.Search(0.0, 1.0))
+    map: ChaoticMap = setting(ChaoticMap.TENT, doc="A map", search=fields.Search())
+    some: ChaoticMap = setting(
+        ChaoticMap.TENT, doc="Some maps", search=fields.Search(choices=("tent", "sine"))
+    )
+    switch: bool = setting(False, doc="A switch", search=fields.Search())
+    fixed: float = setting(1.0, doc="Not searched")
+
+    def __post_init__(self) -> None:
+        validate_fields(self)
+
+
+def test_search_text_and_resolved_ranges():
+    infos = {i.name: i for i in describe_fields(Searched)}
+    assert infos["size"].search == "searched: [4, 100] log"
+    assert infos["rate"].search == "searched: [0.0, 1.0]"
+    assert infos["map"].search == "searched: " + ", ".join(m.name.lower() for m in ChaoticMap)
+    assert infos["some"].search == "searched: tent, sine"
+    assert infos["switch"].search == "searched: False, True"
+    assert infos["fixed"].search == "not tuned"
+    spec = {f.name: declared(f) for f in dataclasses.fields(Searched)}
+    assert fields.search_bounds(Searched(size=40), spec["count"]) == (2, 20)
+    assert fields.search_bounds(Searched(), spec["size"]) == (4, 100)
+    assert fields.searched_values(spec["some"]) == ("tent", "sine")

@@ -236,26 +236,29 @@ def _is_group(value: Any) -> bool:
     return dataclasses.is_dataclass(value) and not isinstance(value, type)
 
 
-def settings_rows(obj: Any, prefix: str = "") -> list[list[str]]:
+def settings_rows(obj: Any, prefix: str = "", tunable: bool = False) -> list[list[str]]:
     """One row per setting of ``obj`` (a config class or instance), in the order and words of
-    ``formation-bench list --fields``; a group of settings as a row naming it, then its
-    settings."""
+    ``formation-bench list --fields``, with what a tuner searches when ``tunable`` (an
+    optimiser's); a group of settings as a row naming it, then its settings."""
     from formation_bench.fields import describe_fields
 
     rows = []
     for info in describe_fields(obj):
         if _is_group(info.value):
-            rows.append([f"**{text(prefix + info.name)}** (group)", "", "", "", text(info.doc)])
-            rows += settings_rows(info.value, f"{prefix}{info.name}.")
+            blank = ["", "", ""] + ([""] if tunable else [])
+            rows.append([f"**{text(prefix + info.name)}** (group)", *blank, text(info.doc)])
+            rows += settings_rows(info.value, f"{prefix}{info.name}.", tunable)
             continue
+        searched = [text(info.search)] if tunable else []
         rows.append(
             [code(prefix + info.name), code(info.type), code(shown(info.value)), text(info.allowed),
-             text(info.doc)]
+             *searched, text(info.doc)]
         )  # fmt: skip
     return rows
 
 
 SETTINGS_HEADER = ("setting", "type", "default", "allowed", "meaning")
+OPTIMIZER_SETTINGS_HEADER = ("setting", "type", "default", "allowed", "tuning", "meaning")
 
 
 def _equal(a: Any, b: Any) -> bool:
@@ -321,7 +324,7 @@ def optimizers_page() -> str:
     for cls in sorted(by_class, key=lambda c: c.__name__.lower()):
         lines += [f"## {cls.__name__}", "", f"`{_class_path(cls)}`: {first_paragraph(cls)}"]
         lines += ["", "Settings (the class's defaults):", ""]
-        lines += table(SETTINGS_HEADER, settings_rows(cls))
+        lines += table(OPTIMIZER_SETTINGS_HEADER, settings_rows(cls, tunable=True))
         lines += ["Registered configurations:", ""]
         lines += table(
             ["name", "description", "settings changed from the defaults"],

@@ -11,7 +11,8 @@ members) with one message shape, "<Class>.<field> must be ..., got <value>".
 :func:`describe_fields` lists the declarations for the command line, and
 :func:`kernel_settings_class` turns the fields marked ``kernel=True`` into the
 namedtuple a compiled kernel reads by name, so the kernel's settings cannot
-drift from the dataclass.
+drift from the dataclass. A setting worth tuning also declares the range a tuner searches
+(:class:`Search`), which :func:`search_text` puts in words.
 
 Neutral on purpose: this module imports nothing from the optimisers, the MPC
 harness or the benchmarks, so all of them can declare their settings with it.
@@ -355,6 +356,8 @@ class FieldInfo(NamedTuple):
     doc: str
     value: Any
     """The value of the described instance (the default when a class is described)."""
+    search: str = "not tuned"
+    """What a tuner searches, in words (:func:`search_text`), e.g. ``searched: [4, 100] log``."""
 
 
 def _limit_text(limit: Limit, fallback: str) -> str:
@@ -397,6 +400,39 @@ def allowed_text(spec: Setting) -> str:
     return f"{text}, or None" if spec.optional else text
 
 
+def searched_values(spec: Setting) -> tuple[Any, ...]:
+    """The values a tuner tries of a bool, enum or choice setting, as the command line writes
+    them (its search's ``choices``, else every allowed value)."""
+    assert spec.search is not None and spec.kind in ("bool", "enum", "choice")
+    if spec.search.choices is not None:
+        return tuple(spec.search.choices)
+    if spec.kind == "bool":
+        return (False, True)
+    if spec.kind == "enum":
+        assert spec.enum_type is not None
+        return tuple(member_text(m) for m in spec.enum_type)
+    return tuple(spec.choices() if callable(spec.choices) else spec.choices)
+
+
+def search_bounds(obj: Any, spec: Setting) -> tuple[Any, Any]:
+    """``(low, high)`` of an int or real setting's search, limits naming a field or computed
+    from one read from ``obj`` (the configuration being tuned)."""
+    assert spec.search is not None and spec.kind in ("int", "real")
+    return _limit(obj, spec.search.low), _limit(obj, spec.search.high)
+
+
+def search_text(spec: Setting) -> str:
+    """What a tuner searches of ``spec`` in words: ``searched: [low, high]`` (``log`` on a
+    log scale), ``searched: clip, reflect, resample``, or ``not tuned``."""
+    search = spec.search
+    if search is None:
+        return "not tuned"
+    if spec.kind in ("int", "real"):
+        low, high = (_limit_text(end, "") for end in (search.low, search.high))
+        return f"searched: [{low}, {high}]" + (" log" if search.log else "")
+    return "searched: " + ", ".join(str(v) for v in searched_values(spec))
+
+
 def describe_fields(obj_or_class: Any) -> list[FieldInfo]:
     """The declared fields of a config dataclass (class or instance), in declaration order.
 
@@ -414,8 +450,9 @@ def describe_fields(obj_or_class: Any) -> list[FieldInfo]:
             if isinstance(field.type, str)
             else getattr(field.type, "__name__", str(field.type))
         )
+        allowed, search = allowed_text(spec), search_text(spec)
         out.append(
-            FieldInfo(field.name, type_text, field.default, allowed_text(spec), spec.doc, value)
+            FieldInfo(field.name, type_text, field.default, allowed, spec.doc, value, search)
         )
     return out
 

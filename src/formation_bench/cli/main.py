@@ -46,6 +46,7 @@ from formation_bench.cli.common import (
     set_error,
 )
 from formation_bench.cli.sweep_commands import add_sweep_commands
+from formation_bench.cli.tune_command import add_tune_command
 from formation_bench.environment import EnvironmentValueError, check_environment
 from formation_bench.fields import member_text
 from formation_bench.mpc.loop import ProgressCallback
@@ -231,19 +232,53 @@ def _list_fields(name: str) -> int:
         allowed = ", ".join([*sorted(OPTIMIZERS), *sorted(SCENARIOS)])
         raise UsageError(f"--fields: unknown optimizer or scenario {name!r}; allowed: {allowed}")
     print(f"{kind} {name} ({type(obj).__name__}); set with --set {kind}.FIELD=VALUE")
-    _print_fields(obj, describe_fields)
+    if kind == "optimizer":
+        for line in tuned_provenance_lines(name):
+            print(f"  {line}")
+    _print_fields(obj, describe_fields, tunable=kind == "optimizer")
     return 0
 
 
-def _print_fields(obj: Any, describe_fields: Any) -> None:
-    """Each setting of ``obj``; a group of settings (a field holding a config dataclass) as
-    its settings, set by their own names."""
+def tuned_provenance_lines(name: str) -> list[str]:
+    """Where a tuned variant's values come from (empty for any other optimiser)."""
+    from formation_bench.optimizers.tuned import tuned_data
+
+    data = tuned_data(name)
+    if data is None:
+        return []
+    objective, tuner, made = data["objective"], data["tuner"], data["provenance"]
+    if objective["kind"] == "solve":
+        subset = "" if objective["problems"] is None else f" (first {objective['problems']})"
+        on = f"split {objective['split']} of library {objective['library']}{subset}"
+    else:
+        on = f"suite {objective['suite']}, seeds {', '.join(map(str, objective['seeds']))}"
+    tuned = ", ".join(f"{k}={shown_value(v)}" for k, v in data["values"].items())
+    measure = objective["metric"]
+    if not measure.startswith(objective["statistic"]):
+        measure = f"{objective['statistic']} {measure}"
+    return [
+        f"tuned from {data['base']}: {tuned}",
+        f"tuner: {tuner['library']} {tuner['version']} {tuner['sampler']}, {tuner['trials']} "
+        f"trials in batches of {tuner['batch']}, seed {tuner['seed']}",
+        f"objective: {measure} ({objective['kind']}) on "
+        f"{on}, {objective['budget']} evaluations per solve: {data['default_value']:.6g} at "
+        f"{data['base']}, {data['best_value']:.6g} tuned",
+        f"made: {made['date']}, commit {made['commit']}, formation-bench {made['version']}, "
+        f"{made['wall_time_s']:.0f} s on {made['machine']}",
+    ]
+
+
+def _print_fields(obj: Any, describe_fields: Any, tunable: bool) -> None:
+    """Each setting of ``obj``, with what a tuner searches of it when ``tunable`` (an
+    optimiser's); a group of settings (a field holding a config dataclass) as its settings,
+    set by their own names."""
     for info in describe_fields(obj):
         if dataclasses.is_dataclass(info.value) and not isinstance(info.value, type):
             print(f"  [{info.name}] {info.doc}")
-            _print_fields(info.value, describe_fields)
+            _print_fields(info.value, describe_fields, tunable)
             continue
-        print(f"  {info.name} = {shown_value(info.value)}  ({info.type}; {info.allowed})")
+        search = f"; {info.search}" if tunable else ""
+        print(f"  {info.name} = {shown_value(info.value)}  ({info.type}; {info.allowed}{search})")
         print(f"      {info.doc}")
 
 
@@ -585,11 +620,13 @@ def build_parser() -> _Parser:
     listing.add_argument(
         "--fields",
         metavar="NAME",
-        help="the settable fields of one optimizer or scenario: value, allowed values, meaning",
+        help="the settable fields of one optimizer or scenario: value, allowed values, what a "
+        "tuner searches (an optimizer's), meaning",
     )
     listing.set_defaults(func=cmd_list)
 
     add_sweep_commands(sub)
+    add_tune_command(sub)
     return parser
 
 
@@ -615,7 +652,7 @@ def _check_arguments(args: argparse.Namespace) -> None:
             _check_distinct("--seeds", args.seeds)
         if args.command == "score":
             _check_distinct("--budgets", args.budgets)
-        if args.command in ("sweep", "score") and getattr(args, "scheduler", None) is None:
+        if args.command in ("sweep", "score", "tune") and getattr(args, "scheduler", None) is None:
             check_jobs(args.jobs)
     except (LimitError, EnvironmentValueError) as err:
         raise UsageError(str(err)) from None

@@ -55,7 +55,7 @@ from formation_bench.instances.library import (
     load_shipped,
     shipped,
 )
-from formation_bench.optimizers import Budget, Optimizer, get_optimizer
+from formation_bench.optimizers import Budget, Optimizer, OptimizeResult, get_optimizer
 from formation_bench.pipeline.interrupts import interrupts_deferred, interrupts_where_safe
 from formation_bench.pipeline.record import Provenance
 from formation_bench.pipeline.runner import warm_up_solve
@@ -289,10 +289,8 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
             warm_up_solve(optimizer, first, first.bounds, budget, instances[0].warm_start)
         started = time.perf_counter()
         for instance in instances:
-            problem = instance.problem
-            rng = np.random.default_rng(np.random.SeedSequence([run.entropy, instance.index]))
             start = time.perf_counter()
-            result = optimizer.minimize(problem, problem.bounds, rng, budget, instance.warm_start)
+            result = solve_instance(optimizer, instance, run.entropy, budget)
             seconds = time.perf_counter() - start
             history_nfev = result.history_nfev if result.history_nfev.size else [result.nfev]
             history_fun = result.history_fun if result.history_fun.size else [result.fun]
@@ -312,7 +310,7 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
                     "warm_cost": float(instance.warm_cost),
                     "fun": float(result.fun),
                     "gap": float(instance.gap(result.fun)),
-                    "normalised_gap": _normalised(instance, result.fun),
+                    "normalised_gap": normalised_gap_of(instance, result.fun),
                     "nfev": int(result.nfev),
                     "nit": int(result.nit),
                     "seconds": seconds,
@@ -352,12 +350,23 @@ def execute_score(run: ScoreRun, library: Library | None = None) -> pd.DataFrame
     return frame
 
 
+def solve_instance(
+    optimizer: Optimizer, instance: Instance, entropy: int, budget: Budget | None
+) -> OptimizeResult:
+    """One solve of ``instance`` from its warm start, as a score run makes it: its random
+    numbers from ``SeedSequence([entropy, instance.index])``, so they depend on the run and
+    the instance only (not on the order or the worker that solves it)."""
+    problem = instance.problem
+    rng = np.random.default_rng(np.random.SeedSequence([entropy, instance.index]))
+    return optimizer.minimize(problem, problem.bounds, rng, budget, instance.warm_start)
+
+
 def execute_score_run(run: ScoreRun, library: Library | None = None) -> RunResult:
     """Carry out one score run in a worker (an executor's ``work``): its rows, or its error."""
     return computed(run.key, lambda: RunResult(run.key, None, rows=execute_score(run, library)))
 
 
-def _normalised(instance: Instance, cost: float) -> float:
+def normalised_gap_of(instance: Instance, cost: float) -> float:
     """The normalised gap of ``cost`` on ``instance``: NaN on a degenerate one."""
     if instance.degenerate:
         return math.nan

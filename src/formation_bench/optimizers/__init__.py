@@ -30,6 +30,9 @@ from formation_bench.optimizers.pso import PSO
 from formation_bench.optimizers.random_search import RandomSearch
 from formation_bench.optimizers.registry import OPTIMIZERS, get_optimizer, optimizer_names, register
 
+# last: the tuned variants are configurations of the families registered above
+from formation_bench.optimizers.tuned import register_tuned  # isort: skip
+
 __all__ = [
     "CEM",
     "CMAES",
@@ -56,4 +59,5 @@ __all__ = [
     "get_optimizer",
     "optimizer_names",
     "register",
+    "register_tuned",
 ]

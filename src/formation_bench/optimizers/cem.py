@@ -44,7 +44,13 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.fields import (
+    Search,
+    Validated,
+    kernel_settings_class,
+    pack_settings,
+    setting,
+)
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -68,25 +74,32 @@ PER_SOLVE = ("t_max", "kept_count", "noise_matrix", "lower", "upper")
 """The kernel settings fixed per solve rather than per configuration, after the declared ones."""
 
 
+def elites_search_high(obj: object) -> int:
+    """min(population_size // 2, 50)"""
+    return min(obj.population_size // 2, 50)  # type: ignore[attr-defined]
+
+
 @dataclass(frozen=True)
 class CEMConfig(PlanShape, Validated):
     """The settings of :class:`CEM`, declared once (defaults: ``cem``)."""
 
     population_size: int = setting(
-        100, low=2, kernel=True, doc="N, samples drawn per iteration (the first, with decay)"
-    )
+        100, low=2, kernel=True, search=Search(10, 300, log=True),
+        doc="N, samples drawn per iteration (the first, with decay)",
+    )  # fmt: skip
     elite_count: int = setting(
-        10, low=1, high="population_size", kernel=True, doc="K, elites the Gaussian is refit to"
-    )
+        10, low=1, high="population_size", kernel=True, search=Search(2, elites_search_high),
+        doc="K, elites the Gaussian is refit to",
+    )  # fmt: skip
     max_evaluations: int = budget_setting(
         1230, doc="Evaluations when the caller gives no budget (the default budget)"
     )
     initial_std: float = setting(
-        0.05, low=0.0, low_open=True, high=1.0,
+        0.05, low=0.0, low_open=True, high=1.0, search=Search(0.005, 0.5, log=True),
         doc="Initial standard deviation as a share of each coordinate's range",
     )  # fmt: skip
     momentum: float = setting(
-        0.1, low=0.0, high=1.0, high_open=True, kernel=True,
+        0.1, low=0.0, high=1.0, high_open=True, kernel=True, search=Search(0.0, 0.9),
         doc="alpha: mean and std become alpha old + (1 - alpha) the elites'",
     )  # fmt: skip
     noise_exponent: float = setting(

@@ -44,7 +44,13 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
-from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.fields import (
+    Search,
+    Validated,
+    kernel_settings_class,
+    pack_settings,
+    setting,
+)
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -61,8 +67,18 @@ from formation_bench.optimizers.bso_ops import (
 )
 from formation_bench.optimizers.chaos import ChaoticMap, step_inplace
 from formation_bench.optimizers.original_bso_kernels import ShiConfig, ShiSettings, shi_step
-from formation_bench.optimizers.population import WarmStartInit, greedy_select, progress
+from formation_bench.optimizers.population import (
+    POPULATION_SEARCH,
+    WarmStartInit,
+    greedy_select,
+    progress,
+)
 from formation_bench.optimizers.registry import register
+
+
+def radius_end_search_high(obj: object) -> float:
+    """min(local_radius_start, 0.1)"""
+    return min(obj.local_radius_start, 0.1)  # type: ignore[attr-defined]
 
 
 @dataclass(frozen=True)
@@ -74,13 +90,18 @@ class LocalSearchConfig(Validated):
     name.
     """
 
-    n_local: int = setting(5, low=1, kernel=True, doc="Chaotic local search points per iteration")
+    n_local: int = setting(
+        5, low=1, kernel=True, search=Search(1, 20, log=True),
+        doc="Chaotic local search points per iteration",
+    )  # fmt: skip
     local_radius_start: float = setting(
         0.1, low=0.0, high=1.0, low_open=True, kernel=True,
+        search=Search(0.01, 0.5, log=True),
         doc="Search radius at the first iteration, as a fraction of the range",
     )  # fmt: skip
     local_radius_end: float = setting(
         0.001, low=0.0, high="local_radius_start", low_open=True, kernel=True,
+        search=Search(0.0001, radius_end_search_high, log=True),
         doc="Search radius at the last planned iteration",
     )  # fmt: skip
     local_map: ChaoticMap = setting(
@@ -239,8 +260,9 @@ class ChaoticLocalSearchBSO(WarmStartInit, LocalSearchConfig, ShiConfig, AskTell
     """
 
     population_size: int = setting(
-        25, low=2, doc="N, ideas per iteration; 25 + n_local = 30 evaluations per iteration"
-    )
+        25, low=2, search=POPULATION_SEARCH,
+        doc="N, ideas per iteration; 25 + n_local = 30 evaluations per iteration",
+    )  # fmt: skip
 
     kernels = Kernels(cls_ask, cls_tell, cls_iterate)
 

@@ -58,7 +58,13 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.fields import (
+    Search,
+    Validated,
+    kernel_settings_class,
+    pack_settings,
+    setting,
+)
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -105,7 +111,7 @@ class CMAConfig(Validated):
         doc="lambda, samples per generation of the first run; None: 4 + floor(3 ln n)",
     )  # fmt: skip
     sigma0: float = setting(
-        0.2, low=0.0, high=1.0, low_open=True,
+        0.2, low=0.0, high=1.0, low_open=True, search=Search(0.001, 1.0, log=True),
         doc="Initial step size as a fraction of each coordinate's range",
     )  # fmt: skip
     max_evaluations: int = budget_setting(
@@ -119,7 +125,7 @@ class CMAConfig(Validated):
         doc="After a stop criterion: same (same lambda), ipop (double lambda) or bipop",
     )
     bound_handling: CMABoundHandling = setting(
-        CMABoundHandling.TRANSFORM, kernel=True,
+        CMABoundHandling.TRANSFORM, kernel=True, search=Search(),
         doc="How samples are brought into the box: clip, reflect, resample, or transform (pycma's)",
     )  # fmt: skip
     constants: CMAConstants = setting(
@@ -127,7 +133,7 @@ class CMAConfig(Validated):
         doc="Strategy constants and h_sigma test: tutorial (Hansen's Table 1) or pycma (pycma 4's)",
     )  # fmt: skip
     lamarckian: bool = setting(
-        False, kernel=True,
+        False, kernel=True, search=Search(),
         doc="Learn from the repaired points (steps capped, Hansen 2011), not the sampled steps",
     )  # fmt: skip
     tol_fun: float = setting(

@@ -32,7 +32,13 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.fields import (
+    Search,
+    Validated,
+    kernel_settings_class,
+    pack_settings,
+    setting,
+)
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -42,7 +48,7 @@ from formation_bench.optimizers.ask_tell import (
 )
 from formation_bench.optimizers.base import Bounds, budget_setting
 from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
-from formation_bench.optimizers.population import WarmStartInit
+from formation_bench.optimizers.population import POPULATION_SEARCH, WarmStartInit
 from formation_bench.optimizers.registry import register
 
 PARTNER_UNIFORMS = 3
@@ -77,8 +83,9 @@ class DEConfig(Validated):
     make :class:`DESettings`, which the kernels rebuild and read by name."""
 
     population_size: int = setting(
-        30, low=4, doc="N, members (rand/1 needs three partners besides the member)"
-    )
+        30, low=4, search=POPULATION_SEARCH,
+        doc="N, members (rand/1 needs three partners besides the member)",
+    )  # fmt: skip
     max_iterations: int = budget_setting(
         40,
         doc="Generations when the caller gives no budget; the default budget is N (T + 1)",
@@ -88,15 +95,15 @@ class DEConfig(Validated):
         doc="Mutant: x_r1 + F (x_r2 - x_r3), or x_i + F (x_best - x_i + x_r1 - x_r2)",
     )  # fmt: skip
     differential_weight: float = setting(
-        0.5, low=0.0, high=2.0, low_open=True, kernel=True,
+        0.5, low=0.0, high=2.0, low_open=True, kernel=True, search=Search(0.1, 1.5),
         doc="F, the scale of the difference vectors",
     )  # fmt: skip
     crossover_rate: float = setting(
-        0.9, low=0.0, high=1.0, kernel=True,
+        0.9, low=0.0, high=1.0, kernel=True, search=Search(0.0, 1.0),
         doc="CR, probability that a coordinate (besides j_rand) comes from the mutant",
     )  # fmt: skip
     bound_handling: BoundHandling = setting(
-        BoundHandling.RESAMPLE, kernel=True,
+        BoundHandling.RESAMPLE, kernel=True, search=Search(),
         doc="How trial coordinates outside the box are brought back: clip, reflect or resample",
     )  # fmt: skip
     updating: DEUpdating = setting(

@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from formation_bench.fields import Validated, kernel_settings_class, setting
+from formation_bench.fields import Search, Validated, kernel_settings_class, setting
 from formation_bench.optimizers.ask_tell import iterate, register_kernels
 from formation_bench.optimizers.base import budget_setting
 from formation_bench.optimizers.bound_handling import BoundHandling
@@ -34,8 +34,13 @@ from formation_bench.optimizers.bso_ops import (
 )
 from formation_bench.optimizers.chaos import ChaoticMap
 from formation_bench.optimizers.clustering import DEFAULT_MAX_ITER, ClusteringBackend
-from formation_bench.optimizers.original_bso_kernels import PER_SOLVE
-from formation_bench.optimizers.population import greedy_select
+from formation_bench.optimizers.original_bso_kernels import (
+    CLUSTERS_SEARCH,
+    PER_SOLVE,
+    REPLACE_SEARCH,
+    SHI_PROBABILITY_SEARCH,
+)
+from formation_bench.optimizers.population import POPULATION_SEARCH, greedy_select
 
 
 @dataclass(frozen=True)
@@ -47,22 +52,28 @@ class ModifiedBSOConfig(Validated):
     read by name (numba's cache is invalidated when this file changes).
     """
 
-    population_size: int = setting(30, low=2, doc="N, ideas per iteration")
-    n_clusters: int = setting(
-        5, low=1, high="population_size", kernel=True, doc="m, k-means clusters"
+    population_size: int = setting(
+        30, low=2, search=POPULATION_SEARCH, doc="N, ideas per iteration"
     )
+    n_clusters: int = setting(
+        5, low=1, high="population_size", kernel=True, search=CLUSTERS_SEARCH,
+        doc="m, k-means clusters",
+    )  # fmt: skip
     max_iterations: int = budget_setting(
         40, doc="T_max when the caller gives no budget; the default budget"
     )
     slope: float = setting(
-        20.0, low=0.0, low_open=True, kernel=True,
+        20.0, low=0.0, low_open=True, kernel=True, search=Search(1.0, 100.0, log=True),
         doc="k, slope of the logsig step-size schedule of eq. (10)",
     )  # fmt: skip
     p_replace: float = setting(
-        0.2, low=0.0, high=1.0, kernel=True,
+        0.2, low=0.0, high=1.0, kernel=True, search=REPLACE_SEARCH,
         doc="p_r, probability per iteration of a chaotic centre replacement",
     )  # fmt: skip
-    n_replace: int = setting(10, low=1, kernel=True, doc="n_r, chaotic candidates per replacement")
+    n_replace: int = setting(
+        10, low=1, kernel=True, search=Search(1, 30, log=True),
+        doc="n_r, chaotic candidates per replacement",
+    )  # fmt: skip
     n_weight_iterations: int = setting(
         10, low=0, kernel=True,
         doc="n_h, iterations of the weight map from the random seed ch(0)",
@@ -79,14 +90,16 @@ class ModifiedBSOConfig(Validated):
         doc="Scale each idea's weights to sum to one (False: the raw weights printed in eq. 9)",
     )  # fmt: skip
     step_scale: float = setting(
-        0.1, low=0.0, low_open=True, doc="Multiplier of the N(0, 1) step of eq. (10)"
-    )
+        0.1, low=0.0, low_open=True, search=Search(0.001, 1.0, log=True),
+        doc="Multiplier of the N(0, 1) step of eq. (10)",
+    )  # fmt: skip
     step_relative_to_range: bool = setting(
         True, doc="Multiply step_scale by each coordinate's range upper - lower"
     )
     bound_handling: BoundHandling = setting(
-        BoundHandling.CLIP, kernel=True, doc="How ideas outside the bounds are brought back"
-    )
+        BoundHandling.CLIP, kernel=True, search=Search(),
+        doc="How ideas outside the bounds are brought back",
+    )  # fmt: skip
     clustering: ClusteringBackend = setting(
         ClusteringBackend.COMPILED, doc="k-means implementation"
     )
@@ -94,15 +107,15 @@ class ModifiedBSOConfig(Validated):
         DEFAULT_MAX_ITER, low=1, kernel=True, doc="Cap on Lloyd iterations per clustering"
     )
     p_one_cluster: float = setting(
-        0.8, low=0.0, high=1.0, kernel=True,
+        0.8, low=0.0, high=1.0, kernel=True, search=SHI_PROBABILITY_SEARCH,
         doc="Shi's p_6b: idea from one cluster rather than two (all-centre weighting off)",
     )  # fmt: skip
     p_one_centre: float = setting(
-        0.4, low=0.0, high=1.0, kernel=True,
+        0.4, low=0.0, high=1.0, kernel=True, search=SHI_PROBABILITY_SEARCH,
         doc="Shi's p_6biii: one-cluster idea is the centre, else a random member",
     )  # fmt: skip
     p_two_centres: float = setting(
-        0.5, low=0.0, high=1.0, kernel=True,
+        0.5, low=0.0, high=1.0, kernel=True, search=SHI_PROBABILITY_SEARCH,
         doc="Shi's p_6c: two-cluster idea mixes the centres, else random members",
     )  # fmt: skip
     chaos_replacement: bool = setting(

@@ -54,7 +54,13 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.fields import (
+    Search,
+    Validated,
+    kernel_settings_class,
+    pack_settings,
+    setting,
+)
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -73,6 +79,7 @@ from formation_bench.optimizers.plan_sampling import (
     smooth_stages,
     temperature_of,
 )
+from formation_bench.optimizers.population import POPULATION_SEARCH
 from formation_bench.optimizers.registry import register
 
 PER_SOLVE = ("stages", "noise", "lower", "upper")
@@ -83,18 +90,20 @@ PER_SOLVE = ("stages", "noise", "lower", "upper")
 class MPPIConfig(PlanShape, Validated):
     """The settings of :class:`MPPI`, declared once."""
 
-    population_size: int = setting(30, low=1, doc="K, perturbed plans sampled per iteration")
+    population_size: int = setting(
+        30, low=1, search=POPULATION_SEARCH, doc="K, perturbed plans sampled per iteration"
+    )
     max_iterations: int = budget_setting(
         40,
         doc="Iterations when the caller gives no budget; the default budget is 1 + K + "
         "(T - 1) (K + 1) with the nominal evaluated",
     )  # fmt: skip
     noise_std: float = setting(
-        0.01, low=0.0, high=1.0, low_open=True,
+        0.01, low=0.0, high=1.0, low_open=True, search=Search(0.0005, 0.2, log=True),
         doc="Standard deviation of the perturbations, per channel, as a share of its range",
     )  # fmt: skip
     temperature: float = setting(
-        0.01, low=0.0, low_open=True, kernel=True,
+        0.01, low=0.0, low_open=True, kernel=True, search=Search(0.0001, 1.0, log=True),
         doc="lambda, in the units temperature_scale says",
     )  # fmt: skip
     temperature_scale: TemperatureScale = setting(
@@ -103,7 +112,7 @@ class MPPIConfig(PlanShape, Validated):
         "(median absolute deviation) of the iteration's costs",
     )  # fmt: skip
     control_cost: float = setting(
-        0.0, low=0.0, high=1.0, kernel=True,
+        0.0, low=0.0, high=1.0, kernel=True, search=Search(0.0, 1.0),
         doc="gamma / lambda, the share of the control term lambda u^T Sigma^-1 eps in the "
         "sample costs; 0: off",
     )  # fmt: skip

@@ -13,7 +13,13 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.fields import (
+    Search,
+    Validated,
+    kernel_settings_class,
+    pack_settings,
+    setting,
+)
 from formation_bench.optimizers.ask_tell import iterate, register_kernels
 from formation_bench.optimizers.base import Bounds, budget_setting
 from formation_bench.optimizers.bound_handling import BoundHandling
@@ -31,10 +37,28 @@ from formation_bench.optimizers.bso_ops import (
     uniforms_per_iteration,
 )
 from formation_bench.optimizers.clustering import DEFAULT_MAX_ITER
-from formation_bench.optimizers.population import greedy_select, step_scale
+from formation_bench.optimizers.population import POPULATION_SEARCH, greedy_select, step_scale
 
 PER_SOLVE = ("t_max", "scale", "lower", "upper")
 """The kernel settings fixed per solve rather than per configuration, after the declared ones."""
+
+MOST_CLUSTERS_SEARCHED = 12
+"""Most k-means clusters a tuner tries: beyond a dozen a cluster of a small population holds
+two or three ideas, and the clustering no longer groups anything."""
+
+
+def clusters_search_high(obj: object) -> int:
+    """min(population_size, 12)"""
+    return min(obj.population_size, MOST_CLUSTERS_SEARCHED)  # type: ignore[attr-defined]
+
+
+CLUSTERS_SEARCH = Search(2, clusters_search_high)
+"""What a tuner searches of BSO's m (one cluster would leave nothing to choose between)."""
+REPLACE_SEARCH = Search(0.05, 0.8)
+"""What a tuner searches of BSO's centre replacement probability: above 0, where the
+replacement is off and the method the ablation without it."""
+SHI_PROBABILITY_SEARCH = Search(0.0, 1.0)
+"""What a tuner searches of Shi's idea-selection probabilities p_6b, p_6biii and p_6c."""
 
 
 @dataclass(frozen=True)
@@ -48,40 +72,45 @@ class ShiConfig(Validated):
     read by name (numba's cache is invalidated when this file changes).
     """
 
-    population_size: int = setting(30, low=2, doc="N, ideas per iteration")
-    n_clusters: int = setting(
-        5, low=1, high="population_size", kernel=True, doc="m, k-means clusters"
+    population_size: int = setting(
+        30, low=2, search=POPULATION_SEARCH, doc="N, ideas per iteration"
     )
+    n_clusters: int = setting(
+        5, low=1, high="population_size", kernel=True, search=CLUSTERS_SEARCH,
+        doc="m, k-means clusters",
+    )  # fmt: skip
     max_iterations: int = budget_setting(
         40, doc="T_max when the caller gives no budget; the default budget is N (T_max + 1)"
     )
     slope: float = setting(
-        20.0, low=0.0, low_open=True, kernel=True, doc="k, slope of the logsig step-size schedule"
-    )
+        20.0, low=0.0, low_open=True, kernel=True, search=Search(1.0, 100.0, log=True),
+        doc="k, slope of the logsig step-size schedule",
+    )  # fmt: skip
     p_replace: float = setting(
-        0.2, low=0.0, high=1.0, kernel=True,
+        0.2, low=0.0, high=1.0, kernel=True, search=REPLACE_SEARCH,
         doc="p_5a, probability per iteration of replacing a random centre by a random point",
     )  # fmt: skip
     p_one_cluster: float = setting(
-        0.8, low=0.0, high=1.0, kernel=True,
+        0.8, low=0.0, high=1.0, kernel=True, search=SHI_PROBABILITY_SEARCH,
         doc="p_6b, probability that an idea comes from one cluster rather than two",
     )  # fmt: skip
     p_one_centre: float = setting(
-        0.4, low=0.0, high=1.0, kernel=True,
+        0.4, low=0.0, high=1.0, kernel=True, search=SHI_PROBABILITY_SEARCH,
         doc="p_6biii, probability that a one-cluster idea starts from the centre",
     )  # fmt: skip
     p_two_centres: float = setting(
-        0.5, low=0.0, high=1.0, kernel=True,
+        0.5, low=0.0, high=1.0, kernel=True, search=SHI_PROBABILITY_SEARCH,
         doc="p_6c, probability that a two-cluster idea mixes the two centres",
     )  # fmt: skip
     step_scale: float = setting(
-        1.0, low=0.0, low_open=True, doc="Multiplier of the N(0, 1) step; 1 as published"
-    )
+        1.0, low=0.0, low_open=True, search=Search(0.001, 10.0, log=True),
+        doc="Multiplier of the N(0, 1) step; 1 as published",
+    )  # fmt: skip
     step_relative_to_range: bool = setting(
         False, doc="Multiply step_scale by each coordinate's range (False as published)"
     )
     bound_handling: BoundHandling = setting(
-        BoundHandling.CLIP, kernel=True,
+        BoundHandling.CLIP, kernel=True, search=Search(),
         doc="How ideas outside the bounds are brought back (not specified by the paper)",
     )  # fmt: skip
     kmeans_max_iter: int = setting(

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from formation_bench.fields import setting
+from formation_bench.fields import Search, setting
 from formation_bench.optimizers.base import Bounds, EvaluationCounter, OptimizeResult
 from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.compiled import (
@@ -27,6 +27,10 @@ from formation_bench.optimizers.compiled import (
     new_tally,
 )
 from formation_bench.optimizers.compiled import evaluate_prefix as compiled_evaluate_prefix
+
+POPULATION_SEARCH = Search(4, 100, log=True)
+"""What a tuner searches of a population size: at the evaluation budget a tuning gives a solve
+(about 1200) 100 members still leave some ten iterations; 4 is the least every method takes."""
 
 
 @dataclass(frozen=True)
@@ -48,6 +52,7 @@ class WarmStartInit:
         0.0,
         low=0.0,
         high=1.0,
+        search=Search(0.0, 1.0),
         doc="Share of the initial population drawn around the warm start (rows after "
         "row 0, which is the warm start itself); 0: uniform in the box (the published methods)",
     )
@@ -56,6 +61,7 @@ class WarmStartInit:
         low=0.0,
         low_open=True,
         high=1.0,
+        search=Search(0.001, 0.5, log=True),
         doc="Standard deviation of the cloud around the warm start, per coordinate, "
         "as a share of the coordinate's range",
     )

@@ -40,7 +40,13 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
-from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.fields import (
+    Search,
+    Validated,
+    kernel_settings_class,
+    pack_settings,
+    setting,
+)
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -50,6 +56,7 @@ from formation_bench.optimizers.ask_tell import (
 )
 from formation_bench.optimizers.base import Bounds, budget_setting
 from formation_bench.optimizers.plan_sampling import NominalStart, PlanShape, plan_samples
+from formation_bench.optimizers.population import POPULATION_SEARCH
 from formation_bench.optimizers.registry import register
 
 PER_SOLVE = ("noise", "lower", "upper")
@@ -60,13 +67,15 @@ PER_SOLVE = ("noise", "lower", "upper")
 class PredictiveSamplingConfig(PlanShape, Validated):
     """The settings of :class:`PredictiveSampling`, declared once."""
 
-    population_size: int = setting(9, low=1, doc="N, samples around the nominal per iteration")
+    population_size: int = setting(
+        9, low=1, search=POPULATION_SEARCH, doc="N, samples around the nominal per iteration"
+    )
     max_iterations: int = budget_setting(
         136,
         doc="Iterations when the caller gives no budget; the default budget is 1 + N T",
     )  # fmt: skip
     noise_std: float = setting(
-        0.005, low=0.0, high=1.0, low_open=True,
+        0.005, low=0.0, high=1.0, low_open=True, search=Search(0.0002, 0.2, log=True),
         doc="Standard deviation of the samples, per channel, as a share of its range",
     )  # fmt: skip
 

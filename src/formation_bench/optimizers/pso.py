@@ -45,7 +45,13 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
-from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.fields import (
+    Search,
+    Validated,
+    kernel_settings_class,
+    pack_settings,
+    setting,
+)
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -56,7 +62,12 @@ from formation_bench.optimizers.ask_tell import (
 from formation_bench.optimizers.base import Bounds, budget_setting
 from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.chaos import ChaoticMap, apply_map, step_inplace
-from formation_bench.optimizers.population import WarmStartInit, greedy_select, progress
+from formation_bench.optimizers.population import (
+    POPULATION_SEARCH,
+    WarmStartInit,
+    greedy_select,
+    progress,
+)
 from formation_bench.optimizers.registry import register
 
 PER_SOLVE = ("t_max", "v_max", "lower", "upper")
@@ -68,30 +79,33 @@ class PSOConfig(Validated):
     """The settings of :class:`PSO`, declared once: the fields marked ``kernel=True`` make
     :class:`PSOSettings`, which the kernels rebuild and read by name."""
 
-    population_size: int = setting(30, low=2, doc="N, particles")
+    population_size: int = setting(30, low=2, search=POPULATION_SEARCH, doc="N, particles")
     max_iterations: int = budget_setting(
         40,
         doc="Iterations when the caller gives no budget; the default budget is N (T + 1)",
     )  # fmt: skip
     inertia_start: float = setting(
-        0.9, low=0.0, high=2.0, kernel=True, doc="Inertia weight at the first iteration"
-    )
+        0.9, low=0.0, high=2.0, kernel=True, search=Search(0.2, 1.2),
+        doc="Inertia weight at the first iteration",
+    )  # fmt: skip
     inertia_end: float = setting(
-        0.4, low=0.0, high=2.0, kernel=True,
+        0.4, low=0.0, high=2.0, kernel=True, search=Search(0.0, 1.0),
         doc="Inertia weight at the last planned iteration; equal to start: constant",
     )  # fmt: skip
     c1: float = setting(
-        2.0, low=0.0, high=5.0, kernel=True,
+        2.0, low=0.0, high=5.0, kernel=True, search=Search(0.0, 4.0),
         doc="Cognitive acceleration (towards the personal best)",
     )  # fmt: skip
     c2: float = setting(
-        2.0, low=0.0, high=5.0, kernel=True, doc="Social acceleration (towards the global best)"
-    )
+        2.0, low=0.0, high=5.0, kernel=True, search=Search(0.0, 4.0),
+        doc="Social acceleration (towards the global best)",
+    )  # fmt: skip
     velocity_clamp: float = setting(
-        0.2, low=0.0, high=2.0, low_open=True, doc="v_max as a fraction of each coordinate's range"
-    )
+        0.2, low=0.0, high=2.0, low_open=True, search=Search(0.02, 1.0, log=True),
+        doc="v_max as a fraction of each coordinate's range",
+    )  # fmt: skip
     bound_handling: BoundHandling = setting(
-        BoundHandling.CLIP, kernel=True,
+        BoundHandling.CLIP, kernel=True, search=Search(),
         doc="How positions outside the box are brought back: clip, reflect or resample",
     )  # fmt: skip
     chaotic_coefficients: bool = setting(
