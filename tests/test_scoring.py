@@ -478,15 +478,20 @@ def test_a_score_report_without_tuned_variants_has_no_rank_change(tmp_path):
     assert pd.read_csv(tmp_path / "score_rank_change.csv").empty
 
 
-def test_the_tuning_budgets_come_from_the_shipped_files_else_a_note_says_so(tmp_path):
+def test_the_tuning_budgets_come_from_the_registered_tuned_variants_else_a_note_says_so(
+    tmp_path, monkeypatch
+):
+    from formation_bench.optimizers import tuned
+
     scores = tuned_scores().assign(split="test")
-    shipped = score_report.write_score_report(scores, tmp_path / "a", figures=False)
-    # this package ships no tuned-variant file for these names: no rank change, and a note
-    assert "Rank change" not in shipped
-    assert "no tuned-variant file in the package for modified-bso-tuned, pso-tuned" in shipped
-    given = score_report.write_score_report(
-        scores, tmp_path / "b", figures=False, tuning_budgets={"pso-tuned": 1200}
-    )
-    assert "## Rank change with the tuned variants, budget max_evaluations=1200" in given
-    written = pd.read_csv(tmp_path / "b" / "score_rank_change.csv")
+    # whatever the package ships: here only pso-tuned is a registered tuned variant
+    monkeypatch.setattr(tuned, "_TUNED", {"pso-tuned": {"objective": {"budget": 1200}}})
+    markdown = score_report.write_score_report(scores, tmp_path / "a", figures=False)
+    assert "## Rank change with the tuned variants, budget max_evaluations=1200" in markdown
+    assert "modified-bso-tuned: not registered here as a tuned variant" in markdown
+    written = pd.read_csv(tmp_path / "a" / "score_rank_change.csv")
     assert written[["family", "default_rank", "tuned_rank"]].values.tolist() == [["pso", 2, 1]]
+    monkeypatch.setattr(tuned, "_TUNED", {})
+    none = score_report.write_score_report(scores, tmp_path / "b", figures=False)
+    assert "Rank change" not in none
+    assert "modified-bso-tuned, pso-tuned: not registered here as a tuned variant" in none

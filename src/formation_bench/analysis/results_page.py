@@ -211,13 +211,13 @@ def tuning_provenance(variants: list[TunedVariant]) -> Provenance:
     """A tuning folder's provenance: the tune commands, dates, versions, commits and machines
     its files record."""
     made = [v.provenance for v in variants]
-    commits = sorted({p.commit[:COMMIT_WIDTH] for p in made})
+    commits = sorted({p.commit[:COMMIT_WIDTH] for p in made if p.commit})
     version = ", ".join(sorted({p.version for p in made}))
     version += f" (commit {', '.join(commits)})" if commits else ""
     return Provenance(
         "tuning",
         "tuning",
-        tuple(dict.fromkeys(_recorded_command(p.command) for p in made)),
+        tuple(dict.fromkeys(_recorded_command(p.command) for p in made if p.command)),
         _span([_day(p.date) for p in made]),
         version,
         ", ".join(sorted({p.machine for p in made})),

@@ -26,7 +26,8 @@ above :data:`FAILURE_GAP`, charged at the slowest solve at the same budget). Bes
   ``X-tuned``, ``X-tuned-loop`` against ``X``; Wilcoxon signed-rank, two-sided,
   Holm-adjusted within each budget and kind of comparison; Vargha-Delaney A12);
 - the rank change of each family with a tuned variant ``X-tuned``
-  (:func:`rank_change_table`): at the evaluation budget it was tuned at, its rank with every
+  (:func:`rank_change_table`): at the evaluation budget it was tuned at (as its registered
+  tuned-variant file records it), its rank with every
   family at its default configuration against its tuned variant's rank with every family
   tuned, and the tuned variant against the family paired by problem;
 - COCO's expected running time to each target, the Dolan-More performance profile of solve
@@ -719,7 +720,7 @@ def write_score_report(
 
     ``tuning_budgets`` (tuned variant -> the evaluation budget it was tuned at) places the
     rank change of each family with a tuned variant (:func:`rank_change_table`); by default
-    the budgets of the tuned variants the package ships."""
+    the budgets the registered tuned variants record."""
     check_score_format(scores, "a report")
     folder.mkdir(parents=True, exist_ok=True)
     tuning_notes: list[str] = []
@@ -789,20 +790,19 @@ def _markdown(
 
 
 def _tuning_budgets(scores: pd.DataFrame) -> tuple[dict[str, int], list[str]]:
-    """The tuning budget of every tuned variant in ``scores`` the package ships, and a note
-    naming those it does not (left out of the rank change)."""
-    tuned = [t for t, _ in tuned_families(sorted(scores["optimizer"].unique()))]
-    if not tuned:
-        return {}, []
-    from formation_bench.analysis.tuning_report import shipped_tuning_budgets
+    """The budget every registered tuned variant in ``scores`` was tuned at, and a note
+    naming the variants ending in ``-tuned`` that are not registered tuned variants (left
+    out of the rank change)."""
+    from formation_bench.optimizers.tuned import tuned_data
 
-    known = shipped_tuning_budgets()
+    tuned = [t for t, _ in tuned_families(sorted(scores["optimizer"].unique()))]
+    known = {t: int(data["objective"]["budget"]) for t in tuned if (data := tuned_data(t))}
     unknown = [t for t in tuned if t not in known]
     if not unknown:
         return known, []
     return known, [
-        f"no tuned-variant file in the package for {', '.join(unknown)}: the budget it was "
-        "tuned at is unknown, so it has no rank change"
+        f"{', '.join(unknown)}: not registered here as a tuned variant (no tuned-variant file), "
+        "so the budget it was tuned at is unknown and it has no rank change"
     ]
 
 

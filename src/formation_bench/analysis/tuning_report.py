@@ -36,8 +36,9 @@ import numpy as np
 import pandas as pd
 
 from formation_bench.analysis.comparison import ReportError
+from formation_bench.optimizers.tuned import TUNED_FORMAT
 
-FORMAT = 1
+FORMAT = TUNED_FORMAT
 """The tuned-variant file format this report reads."""
 KIND_SUFFIXES = {"solve": "-tuned", "loop": "-tuned-loop"}
 """Objective kind -> the ending of the name of the variant tuned on it."""
@@ -87,9 +88,11 @@ class TuningProvenance:
     """Where and when a tuning ran."""
 
     date: str
-    commit: str
+    commit: str | None
+    """None when the tuning's code had no known commit."""
     version: str
     command: str
+    """The command line (empty for a tuning not started from the command line)."""
     wall_time_s: float
     machine: str
 
@@ -130,17 +133,6 @@ def tuned_files(folder: Path) -> list[Path]:
 def read_folder(folder: Path) -> list[TunedVariant]:
     """Every tuned-variant file of ``folder``, checked (:func:`read_tuned`)."""
     return [read_tuned(path) for path in tuned_files(folder)]
-
-
-def shipped_tuning_budgets() -> dict[str, int]:
-    """Tuned variant name -> the evaluation budget per solve it was tuned at, for the
-    variants the package ships (none when it ships none)."""
-    from importlib.resources import files
-
-    folder = files("formation_bench.optimizers").joinpath("tuned")
-    if not folder.is_dir():
-        return {}
-    return {v.name: v.objective.budget for v in read_folder(Path(str(folder)))}
 
 
 class _Fields:
@@ -261,9 +253,9 @@ def read_tuned(path: Path) -> TunedVariant:
     made = top.child("provenance")
     provenance = TuningProvenance(
         date=made.get("date", "must be an ISO date and time", _is_iso),
-        commit=made.text("commit"),
+        commit=made.text("commit", optional=True),
         version=made.text("version"),
-        command=made.text("command"),
+        command=made.get("command", "must be a string", lambda v: isinstance(v, str)),
         wall_time_s=made.number("wall_time_s", 0.0),
         machine=made.text("machine"),
     )
@@ -371,7 +363,7 @@ def variants_table(variants: list[TunedVariant]) -> pd.DataFrame:
             "seeds": " ".join(map(str, v.objective.seeds or ())),
             "tuner": f"{v.tuner.library} {v.tuner.version} {v.tuner.sampler}",
             "date": v.provenance.date,
-            "commit": v.provenance.commit,
+            "commit": v.provenance.commit or "",
         }
         for v in variants
     ]
@@ -492,8 +484,9 @@ def to_markdown(variants: list[TunedVariant], figure: str | None = None) -> str:
         )
     lines += [
         "",
-        f"Total tuning wall time: {_duration(total)} ({total:.0f} s) over {len(variants)} "
-        "variants.",
+        f"Total tuning wall time: {_duration(total)}"
+        + (f" ({total:.0f} s)" if total >= 120 else "")
+        + f" over {len(variants)} variants.",
         "",
         "## Best value found against the trial count",
         "",
