@@ -372,3 +372,126 @@ def test_the_share_formatter_reads_100_or_0_only_when_it_is():
     column = metric_column("solves_at_bound_share", [0.9996])
     assert column.unit == "%" and column.value(0.9996) == "99.96"
     assert column.with_unit(0.9996) == "99.96 %"
+
+
+# --- the rank change of the families with a tuned variant -------------------------------------
+
+AT_1200 = "max_evaluations=1200"
+
+
+TUNED_GAPS = {
+    # (optimizer, budget): the normalised gap of problem k is base + slope * k; the bases >= 0.15
+    # apart and the slopes distinct, so that no two paired differences tie (Wilcoxon's exact p)
+    ("pso-tuned-loop", AT_1200): (0.0, 0.0100),
+    ("pso-tuned", AT_1200): (0.15, 0.0107),
+    ("de", AT_1200): (0.3, 0.0114),
+    ("pso", AT_1200): (0.45, 0.0121),
+    ("pso-warm", AT_1200): (0.6, 0.0128),
+    ("ilqr", "default"): (0.75, 0.0135),
+    ("modified-bso", AT_1200): (0.9, 0.0142),
+    ("modified-bso-tuned", AT_1200): (1.1, 0.0149),
+    # at the default budget pso and de swap places: a ranking read there shows
+    ("de", "default"): (1.2, 0.0156),
+    ("pso", "default"): (0.0, 0.0163),
+}
+
+
+def tuned_scores() -> pd.DataFrame:
+    """12 problems (:data:`TUNED_GAPS`): at 1200 evaluations pso-tuned below pso on every
+    problem, modified-bso-tuned above modified-bso, pso-warm and pso-tuned-loop beside them;
+    ilqr only at its own budget."""
+    rows = [
+        trial(f"h{k}", 1.0, 2.0, 1.0 + base + slope * k, optimizer=optimizer, run=optimizer,
+              budget=budget)
+        for (optimizer, budget), (base, slope) in TUNED_GAPS.items()
+        for k in range(12)
+    ]  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def test_rank_change_ranks_every_family_at_default_then_at_tuned_at_the_tuning_budget():
+    scores = tuned_scores()
+    summary = score_report.summary_table(scores)
+    budgets = {"pso-tuned": 1200, "modified-bso-tuned": 1200}
+    table = score_report.rank_change_table(scores, summary, budgets).set_index("family")
+    assert list(table.index) == ["modified-bso", "pso"]
+    assert set(table["budget"]) == {AT_1200}
+    # default: de 1, pso 2, pso-warm 3, ilqr 4 (its own budget), modified-bso 5;
+    # tuned: pso-tuned 1, de 2, pso-warm 3, ilqr 4, modified-bso-tuned 5
+    assert (table.loc["pso", "default_rank"], table.loc["pso", "tuned_rank"]) == (2, 1)
+    assert table.loc["pso", "rank_change"] == 1
+    assert (table.loc["modified-bso", "default_rank"], table.loc["modified-bso", "tuned_rank"]) == (
+        5,
+        5,
+    )
+    assert (table["optimizers"] == 5).all()
+    # the median of base + slope * k over k = 0 .. 11: base + 5.5 slope
+    assert table.loc["pso", "default_median"] == pytest.approx(0.45 + 5.5 * 0.0121)
+    assert table.loc["pso", "tuned_median"] == pytest.approx(0.15 + 5.5 * 0.0107)
+    # paired by problem: every difference of one sign, exact p 2^-11, Holm over the 2 families
+    assert (table["pairs"] == 12).all()
+    assert table["p"].tolist() == pytest.approx([2**-11] * 2)
+    assert table["p_holm"].tolist() == pytest.approx([2 * 2**-11] * 2)
+    # A12 = P(tuned > default): every pso-tuned value below every pso value, every
+    # modified-bso-tuned value above every modified-bso value
+    assert (table.loc["pso", "a12"], table.loc["modified-bso", "a12"]) == (0.0, 1.0)
+    # a tuned variant whose tuning budget is unknown has no row; one tuned at 300 evaluations
+    # is ranked at that budget, where it has no score runs (nor at its own budget): no row
+    alone = score_report.rank_change_table(scores, summary, {"pso-tuned": 1200})
+    assert list(alone["family"]) == ["pso"]
+    assert score_report.rank_change_table(scores, summary, {"pso-tuned": 300}).empty
+    markdown = score_report.to_markdown(
+        summary,
+        score_report.degenerate_table(scores),
+        score_report.phase_table(scores),
+        score_report.paired_table(scores),
+        library="v2 (split test)",
+        rank_change=score_report.rank_change_table(scores, summary, budgets),
+    )
+    section = markdown.split("## Rank change with the tuned variants, budget max_evaluations=1200")
+    assert len(section) == 2 and "ranked by its median normalised gap" in section[1]
+    assert f"| pso | 2 | 1 | +1 | {0.45 + 5.5 * 0.0121:.3g} [" in section[1]
+    assert section[1].index("| family |") < section[1].index("## budget")
+
+
+def test_tuned_pairs_join_the_paired_table_as_their_own_kind():
+    paired = score_report.paired_table(tuned_scores())
+    at = paired[paired["budget"] == AT_1200]
+    kinds = {
+        kind: set(zip(rows["x"], rows["y"], strict=True)) for kind, rows in at.groupby("comparison")
+    }
+    assert kinds["tuned against default"] == {("modified-bso-tuned", "modified-bso"),
+                                              ("pso-tuned", "pso")}  # fmt: skip
+    assert kinds["tuned for the loop against default"] == {("pso-tuned-loop", "pso")}
+    assert kinds["warm start against uniform start"] == {("pso-warm", "pso")}
+    # Holm within each kind: the two tuned pairs share a family, the warm pair has its own
+    tuned = at[at["comparison"] == "tuned against default"]
+    assert tuned["p_holm"].tolist() == pytest.approx([2 * 2**-11] * 2)
+    warm = at[at["comparison"] == "warm start against uniform start"]
+    assert warm["p_holm"].tolist() == pytest.approx([2**-11])
+
+
+def test_a_score_report_without_tuned_variants_has_no_rank_change(tmp_path):
+    scores = paired_scores().assign(split="test")
+    markdown = score_report.write_score_report(scores, tmp_path, figures=False)
+    assert "Rank change" not in markdown
+    assert pd.read_csv(tmp_path / "score_rank_change.csv").empty
+
+
+def test_the_tuning_budgets_come_from_the_registered_tuned_variants_else_a_note_says_so(
+    tmp_path, monkeypatch
+):
+    from formation_bench.optimizers import tuned
+
+    scores = tuned_scores().assign(split="test")
+    # whatever the package ships: here only pso-tuned is a registered tuned variant
+    monkeypatch.setattr(tuned, "_TUNED", {"pso-tuned": {"objective": {"budget": 1200}}})
+    markdown = score_report.write_score_report(scores, tmp_path / "a", figures=False)
+    assert "## Rank change with the tuned variants, budget max_evaluations=1200" in markdown
+    assert "modified-bso-tuned: not registered here as a tuned variant" in markdown
+    written = pd.read_csv(tmp_path / "a" / "score_rank_change.csv")
+    assert written[["family", "default_rank", "tuned_rank"]].values.tolist() == [["pso", 2, 1]]
+    monkeypatch.setattr(tuned, "_TUNED", {})
+    none = score_report.write_score_report(scores, tmp_path / "b", figures=False)
+    assert "Rank change" not in none
+    assert "modified-bso-tuned, pso-tuned: not registered here as a tuned variant" in none

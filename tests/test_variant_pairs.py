@@ -6,7 +6,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from formation_bench.analysis.variant_pairs import pair_table, to_markdown, variant_pairs
+from formation_bench.analysis.comparison import ReportError, analyse
+from formation_bench.analysis.variant_pairs import (
+    pair_table,
+    to_markdown,
+    variant_kind,
+    variant_pairs,
+)
 
 
 def _runs(optimizer: str, values: np.ndarray, trigger: bool = True) -> pd.DataFrame:
@@ -77,3 +83,81 @@ def test_blocks_are_compared_apart():
     assert table.loc["on", "median_difference"] == 1.0
     assert table.loc["off", "median_difference"] == -1.0
     assert not math.isnan(table.loc["off", "p"])
+
+
+def test_tuned_variants_pair_with_their_base_and_the_longest_suffix_wins():
+    levels = ["pso", "pso-tuned", "pso-tuned-loop", "pso-warm", "pso-warm-tuned", "de-tuned-loop"]
+    expected = [
+        ("pso-tuned", "pso"),
+        ("pso-tuned-loop", "pso"),
+        ("pso-warm", "pso"),
+        ("pso-warm-tuned", "pso-warm"),
+    ]
+    assert variant_pairs(levels) == expected
+    # whichever order the suffixes are declared in: -tuned-loop is not a -loop of pso-tuned
+    assert variant_pairs(levels, ("-tuned", "-warm", "-tuned-loop", "-loop")) == expected
+    assert variant_kind("pso-tuned-loop", ("-loop", "-tuned-loop")) == "-tuned-loop"
+    assert variant_kind("-tuned") is None  # a suffix alone names no variant
+
+
+def test_each_kind_of_variant_is_its_own_holm_family_and_the_text_names_the_kinds():
+    seeds = np.arange(12, dtype=float)
+    frame = pd.concat(
+        [
+            # differences of distinct sizes: no ties, Wilcoxon's exact p
+            _runs("pso", seeds + 100.0),
+            _runs("pso-warm", 1.1 * seeds),
+            _runs("pso-tuned", 1.2 * seeds),
+            _runs("pso-tuned-loop", 1.3 * seeds + 200.0),
+        ]
+    )
+    table = pair_table(frame, metrics=("steady_state_cost",)).set_index("variant")
+    assert table.loc["pso-tuned", "kind"] == "tuned against default"
+    assert table.loc["pso-tuned-loop", "kind"] == "tuned for the loop against default"
+    # one pair per kind: each keeps its own p (Holm over one test), 2 / 2^12
+    assert table["p_holm"].tolist() == pytest.approx([2.0 / 2**12] * 3)
+    assert table.loc["pso-tuned-loop", "a12"] == 1.0
+    text = to_markdown(pair_table(frame, metrics=("steady_state_cost",)))
+    assert "`<name>-warm`: part of the population started around the warm start" in text
+    assert "`<name>-tuned`: settings tuned per solve" in text
+    assert "`<name>-tuned-loop`: settings tuned on a closed-loop metric" in text
+    assert "Holm-adjusted over the pairs of one kind of variant in the block and metric" in text
+    # warm variants alone: the text reads as it always did
+    warm = to_markdown(pair_table(frame[frame["optimizer"].isin(["pso", "pso-warm"])],
+                                  metrics=("steady_state_cost",)))  # fmt: skip
+    assert "Each `<name>-warm` variant against `<name>`, paired by seed." in warm
+    assert "over the pairs of the block and metric;" in warm
+
+
+ABLATION_TUNED = (
+    "modified-bso",
+    "modified-bso-no-chaos-replacement",
+    "modified-bso-no-all-centre",
+    "modified-bso-no-modifications",
+)
+
+
+def test_an_ablation_with_every_variant_tuned_pairs_each_and_takes_a_tuned_baseline():
+    seeds = np.arange(10, dtype=float)
+    frame = pd.concat(
+        [
+            # tuned 0.5 above the default; slopes distinct, so no paired differences tie
+            _runs(name + s, (1 + 0.01 * (2 * k + t)) * seeds + 10.0 * k + 0.5 * t, trigger=on)
+            for k, name in enumerate(ABLATION_TUNED)
+            for t, s in enumerate(("", "-tuned"))
+            for on in (True, False)
+        ]
+    )
+    table = pair_table(frame, metrics=("steady_state_cost",))
+    for trigger in ("on", "off"):
+        pairs = table[table["trigger"] == trigger]
+        assert sorted(zip(pairs["variant"], pairs["base"], strict=True)) == sorted(
+            (f"{name}-tuned", name) for name in ABLATION_TUNED
+        )
+    report = analyse(frame, baseline=["modified-bso-tuned"], metrics=["steady_state_cost"])
+    assert report.baselines == ("modified-bso-tuned",)
+    tested = report.wilcoxon
+    assert set(tested["baseline"]) == {"modified-bso-tuned"}
+    assert len(tested) == 2 * 7  # per trigger, every other level against the tuned baseline
+    with pytest.raises(ReportError, match="not a level of optimizer"):
+        analyse(frame, baseline=["pso-tuned"], metrics=["steady_state_cost"])

@@ -359,6 +359,28 @@ def convergence_figure(curves: pd.DataFrame) -> plt.Figure:
     return fig
 
 
+def tuning_figure(curves: pd.DataFrame) -> plt.Figure:
+    """The best value a tuning found so far, divided by its default value, against the trial
+    count: one curve per tuned variant, one panel per objective kind."""
+    sns.set_theme(style="whitegrid")
+    kinds = list(dict.fromkeys(curves["objective"]))
+    fig, axes = plt.subplots(
+        1, len(kinds), figsize=(6.5 * len(kinds), 4.6), squeeze=False, constrained_layout=True
+    )
+    for ax, kind in zip(axes[0], kinds, strict=True):
+        for variant, curve in curves[curves["objective"] == kind].groupby("variant", sort=False):
+            (line,) = ax.step(
+                curve["trials"], curve["best_so_far_relative"], where="post", label=variant
+            )
+            flat = curve[curve["flattening_point"]]
+            ax.plot(flat["trials"], flat["best_so_far_relative"], "o", color=line.get_color())
+        ax.set_xlabel("trials (dot: flattening point)")
+        ax.set_ylabel("best value found so far / default value")
+        ax.set_title(f"objective: {kind}", fontsize=10)
+        ax.legend(fontsize=7, loc="upper right")
+    return fig
+
+
 def trigger_tradeoff_figure(frame: pd.DataFrame) -> plt.Figure:
     """Solves saved against tracking and formation error as the thresholds vary."""
     sns.set_theme(style="whitegrid")

@@ -7,7 +7,9 @@ report command that writes the page, the date of the runs, the formation-bench v
 the machine (CPU model). Then come the report's tables: for a suite folder the headline
 metrics of every block (:func:`~formation_bench.analysis.report.to_markdown`) and the
 sections the report wrote (swarm, robustness, obstacles, paper budget, variant pairs); for a
-score folder the leaderboard as ``score.md`` ranks it. Every table is preceded by
+score folder the leaderboard as ``score.md`` ranks it; for a folder of tuned-variant files the
+tuning report (:mod:`~formation_bench.analysis.tuning_report`), its figure copied beside the
+page (:func:`tuning_image`). Every table is preceded by
 ``<!-- produced by: COMMAND -->``, a table with times also by the machine and the date
 (the documentation's convention for tables that must not go stale silently).
 """
@@ -29,6 +31,7 @@ from formation_bench.pipeline.provenance import uncommitted
 
 if TYPE_CHECKING:
     from formation_bench.analysis.comparison import Report
+    from formation_bench.analysis.tuning_report import TunedVariant
 
 SECTION_FILES = ("paper_budget.md", "swarm.md", "robustness.md", "obstacles.md", "variant_pairs.md")
 """Report files whose tables a suite's page carries after the headline, in this order."""
@@ -39,7 +42,7 @@ class Provenance:
     """Where a folder's results come from, as the page's first paragraph says it."""
 
     kind: str
-    """``suite`` or ``score``."""
+    """``suite``, ``score`` or ``tuning``."""
     name: str
     commands: tuple[str, ...]
     """The commands that made the results (one per score optimiser)."""
@@ -108,6 +111,14 @@ def suite_provenance(results_dir: Path, results: pd.DataFrame) -> Provenance:
         sorted(results["suite"].astype(str).unique()) if "suite" in results else []
     )
     return Provenance("suite", name, commands, _span(days), str(version or "not recorded"), machine)
+
+
+def _recorded_command(command: str) -> str:
+    """:func:`_shown_command`, or the command as recorded when shlex cannot split it."""
+    try:
+        return _shown_command(command)
+    except ValueError:
+        return command
 
 
 def score_commands(scores: pd.DataFrame, results_dir: Path) -> tuple[str, ...]:
@@ -196,6 +207,30 @@ def score_provenance(results_dir: Path, scores: pd.DataFrame) -> Provenance:
     )
 
 
+def tuning_provenance(variants: list[TunedVariant]) -> Provenance:
+    """A tuning folder's provenance: the tune commands, dates, versions, commits and machines
+    its files record."""
+    made = [v.provenance for v in variants]
+    commits = sorted({p.commit[:COMMIT_WIDTH] for p in made if p.commit})
+    version = ", ".join(sorted({p.version for p in made}))
+    version += f" (commit {', '.join(commits)})" if commits else ""
+    return Provenance(
+        "tuning",
+        "tuning",
+        tuple(dict.fromkeys(_recorded_command(p.command) for p in made if p.command)),
+        _span([_day(p.date) for p in made]),
+        version,
+        ", ".join(sorted({p.machine for p in made})),
+    )
+
+
+def tuning_image(page: Path) -> Path:
+    """Where a tuning page's figure goes: the ``images`` folder beside the page's folder, as
+    the documentation keeps its figures (``docs/results/tuning.md`` ->
+    ``docs/images/tuning_best_so_far.png``)."""
+    return page.parent.parent / "images" / f"{page.stem}_best_so_far.png"
+
+
 def mark_tables(markdown: str, command: str, provenance: Provenance) -> str:
     """``markdown`` with ``<!-- produced by: COMMAND; machine: ...; date: ... -->`` on the line
     above every table, and its headings one level lower (the page's title is the only level-1
@@ -234,12 +269,20 @@ PAGE_HEAD = 4096
 its top)."""
 
 
-def check_page(page: Path, results_dir: Path, report_folder: Path, *, overwrite: bool) -> None:
+def check_page(
+    page: Path,
+    results_dir: Path,
+    report_folder: Path,
+    *,
+    overwrite: bool,
+    image: Path | None = None,
+) -> None:
     """Refuse a ``--page`` that cannot or must not be written, before anything is: not a
     Markdown file, inside the results folder's store or the report folder (which
     ``--overwrite`` replaces as a whole), in a folder that is not writable (read-only or
     immutable), or an existing file that is not a page this command wrote, or is one and
-    ``--overwrite`` is not given."""
+    ``--overwrite`` is not given; and the page's figure ``image``, when it has one, in a
+    folder that is not writable, or existing without ``--overwrite``."""
     from formation_bench.experiments.store import RUNS, SCORE, TRACES
     from formation_bench.pipeline.staging import OutputError, unwritable_parent
 
@@ -259,6 +302,14 @@ def check_page(page: Path, results_dir: Path, report_folder: Path, *, overwrite:
     problem = unwritable_parent(where)
     if problem is not None:
         raise refused(problem)
+    if image is not None:
+        problem = unwritable_parent(Path(os.path.realpath(image)))
+        if problem is None and os.path.lexists(image) and not overwrite:
+            problem = "exists; add --overwrite to write it anew"
+        if problem is None and os.path.lexists(image) and not Path(image).is_file():
+            problem = "exists and is not a regular file"
+        if problem is not None:
+            raise refused(f"its figure {image}: {problem}")
     if not os.path.lexists(page):
         return
     if not where.is_file():
@@ -325,11 +376,13 @@ def page_text(
         if several
         else "".join(f"`{c}`" for c in provenance.commands) or "a command not recorded"
     )
-    kind = "Score runs" if provenance.kind == "score" else f"Suite `{provenance.name}`"
-    title = provenance.name if provenance.kind == "score" else f"suite {provenance.name}"
+    kind, title, made = {
+        "score": ("Score runs", provenance.name, "Runs"),
+        "tuning": ("Tuned variants", provenance.name, "Tunings"),
+    }.get(provenance.kind, (f"Suite `{provenance.name}`", f"suite {provenance.name}", "Runs"))
     intro = (
         f"{kind}, made by {made_by}; {WRITTEN_BY}{command}` (on "
-        f"{today.isoformat()}). Runs dated {dates}; formation-bench {provenance.version}; "
+        f"{today.isoformat()}). {made} dated {dates}; formation-bench {provenance.version}; "
         f"machine: {provenance.machine}."
     )
     if several:
@@ -349,11 +402,14 @@ def write_results_page(
     baseline: list[str] | None = None,
     compare: str | None = None,
     today: dt.date | None = None,
+    tuned: list[TunedVariant] | None = None,
 ) -> Path:
     """Write the results page of ``results_dir`` to ``page`` from the report that
     ``formation-bench report`` has written into ``report_folder``: its sections, and the
     headline tables of ``report`` (the analysis the command made; analysed afresh when not
-    given, with ``baseline`` and ``compare``, which the page's command names too). The findings
+    given, with ``baseline`` and ``compare``, which the page's command names too); for a
+    folder of ``tuned`` variants (no runs, no score runs), the tuning report, its figure
+    copied to :func:`tuning_image` when the report folder has it. The findings
     written by hand into an existing page, between :data:`FINDINGS_START` and
     :data:`FINDINGS_END`, are kept."""
     results_dir, page, folder = Path(results_dir), Path(page), Path(report_folder)
@@ -381,6 +437,9 @@ def write_results_page(
 
         parts.append((folder / "score.md").read_text())
         provenances.append(score_provenance(results_dir, load_scores(results_dir)))
+    if not provenances and tuned is not None:
+        parts.append(_tuning_part(tuned, page, folder))
+        provenances.append(tuning_provenance(tuned))
     if not provenances:
         raise FileNotFoundError(f"{results_dir} holds no runs/ or score/ folder")
     provenance = provenances[0] if len(provenances) == 1 else _merged(provenances)
@@ -401,3 +460,17 @@ def _merged(provenances: list[Provenance]) -> Provenance:
         suite.version,
         suite.machine,
     )
+
+
+def _tuning_part(tuned: list[TunedVariant], page: Path, folder: Path) -> str:
+    """The tuning report for the page, its figure (if the report drew one) copied beside the
+    page (:func:`tuning_image`) and linked relative to it."""
+    from formation_bench.analysis.tuning_report import FIGURE, to_markdown
+    from formation_bench.pipeline.outputs import atomic_write_bytes
+
+    drawn = folder / "figures" / FIGURE
+    if not drawn.is_file():
+        return to_markdown(tuned)
+    image = tuning_image(page)
+    atomic_write_bytes(image, drawn.read_bytes())
+    return to_markdown(tuned, Path(os.path.relpath(image, page.parent)).as_posix())

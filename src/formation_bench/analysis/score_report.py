@@ -22,14 +22,20 @@ above :data:`FAILURE_GAP`, charged at the slowest solve at the same budget). Bes
 - per phase of the loop (start-up, transient, steady): the median normalised gap;
 - paired comparisons, by problem, of the normalised gap: every optimiser against
   :data:`BASELINE`, against the leader (the optimiser with the smallest median normalised
-  gap at that budget) and every ``X-warm`` against ``X`` (Wilcoxon signed-rank, two-sided,
+  gap at that budget) and every variant against the configuration it varies (``X-warm``,
+  ``X-tuned``, ``X-tuned-loop`` against ``X``; Wilcoxon signed-rank, two-sided,
   Holm-adjusted within each budget and kind of comparison; Vargha-Delaney A12);
+- the rank change of each family with a tuned variant ``X-tuned``
+  (:func:`rank_change_table`): at the evaluation budget it was tuned at (as its registered
+  tuned-variant file records it), its rank with every
+  family at its default configuration against its tuned variant's rank with every family
+  tuned, and the tuned variant against the family paired by problem;
 - COCO's expected running time to each target, the Dolan-More performance profile of solve
   time and, with figures, the runtime ECDF.
 
 Files: ``score.md``, ``score_summary.csv``, ``score_degenerate.csv``, ``score_phases.csv``,
-``score_paired.csv``, ``score_ert.csv``, ``score_profile.csv`` and, with figures,
-``figures/score_ecdf.png`` and ``figures/score_profile.png``.
+``score_paired.csv``, ``score_ert.csv``, ``score_profile.csv``, ``score_rank_change.csv``
+and, with figures, ``figures/score_ecdf.png`` and ``figures/score_profile.png``.
 """
 
 from __future__ import annotations
@@ -52,9 +58,11 @@ from formation_bench.analysis.scoring import (
     shifted_geometric_mean,
     success_rate,
 )
-from formation_bench.analysis.variant_pairs import variant_pairs
+from formation_bench.analysis.variant_pairs import VARIANT_KINDS, kind_of, variant_pairs
 from formation_bench.experiments.score import check_score_format, target_column
 from formation_bench.instances.library import PHASES
+from formation_bench.optimizers import Budget
+from formation_bench.pipeline.spec import budget_label
 
 FAILURE_GAP = 1e-3
 """A trial whose final normalised gap is above this failed (for the time statistics)."""
@@ -237,7 +245,8 @@ def phase_table(scores: pd.DataFrame) -> pd.DataFrame:
 def comparisons(optimizers: list[str], leader: str | None = None) -> list[tuple[str, str, str]]:
     """``(kind, x, y)`` of the paired comparisons among ``optimizers``: each against
     :data:`BASELINE` when it is there, each against ``leader`` (the best at the budget, when
-    given and not the baseline), each ``X-warm`` against ``X``."""
+    given and not the baseline), each variant (``X-warm``, ``X-tuned``, ``X-tuned-loop``)
+    against ``X``, one kind of comparison per kind of variant."""
     present = set(optimizers)
     found = []
     if BASELINE in present:
@@ -245,7 +254,9 @@ def comparisons(optimizers: list[str], leader: str | None = None) -> list[tuple[
     if leader is not None and leader != BASELINE and leader in present:
         kind = f"against the leader, {leader}"
         found += [(kind, x, leader) for x in optimizers if x != leader]
-    found += [("warm start against uniform start", x, y) for x, y in variant_pairs(optimizers)]
+    pairs = variant_pairs(optimizers)
+    for kind in VARIANT_KINDS:  # each kind of variant its own family of tests
+        found += [(kind.comparison, x, y) for x, y in pairs if kind_of(x) == kind]
     return found
 
 
@@ -300,6 +311,108 @@ def paired_table(scores: pd.DataFrame) -> pd.DataFrame:
         "a12", "reading",
     ]  # fmt: skip
     return pd.DataFrame(rows, columns=columns)
+
+
+DEFAULT_BUDGET = budget_label(None)
+"""The label of the optimisers' own budgets in the scores."""
+TUNED = next(kind for kind in VARIANT_KINDS if kind.suffix == "-tuned")
+"""The variants whose rank change the leaderboard states: those tuned per solve."""
+TUNED_KINDS = tuple(k for k in VARIANT_KINDS if k.suffix.startswith("-tuned"))
+"""Every kind of tuned variant: none of them ranks with the defaults."""
+
+
+def _is_tuned(optimizer: str) -> bool:
+    return any(optimizer.endswith(kind.suffix) for kind in TUNED_KINDS)
+
+
+def tuned_families(optimizers: list[str]) -> list[tuple[str, str]]:
+    """``(tuned variant, family)`` of every ``X-tuned`` among ``optimizers`` whose ``X`` is
+    there too."""
+    return [(x, y) for x, y in variant_pairs(optimizers) if kind_of(x) == TUNED]
+
+
+def _ranking_rows(summary: pd.DataFrame, budget: str) -> pd.DataFrame:
+    """Each optimiser's leaderboard row at ``budget``, or at its own budget when it has no
+    score runs at ``budget`` (the derivative-based ones, pycma), indexed by optimiser."""
+    at = summary[summary["budget"] == budget].set_index("optimizer")
+    own = summary[summary["budget"] == DEFAULT_BUDGET].set_index("optimizer")
+    return pd.concat([at, own[~own.index.isin(at.index)]])
+
+
+def _ranks(medians: pd.Series) -> pd.Series:
+    return medians.rank(method="min").astype("Int64")
+
+
+def rank_change_table(
+    scores: pd.DataFrame, summary: pd.DataFrame, tuning_budgets: dict[str, int]
+) -> pd.DataFrame:
+    """Per family with a tuned variant (:func:`tuned_families`) whose tuning budget
+    ``tuning_budgets`` knows, at that budget (``max_evaluations=B``): its rank by the median
+    normalised gap among every optimiser at its default configuration (the tuned variants
+    left out), and its tuned variant's rank with every such family replaced by its tuned
+    variant (the others unchanged); an optimiser without score runs at that budget ranks with
+    its runs at its own budget. With the two medians and CIs, and the tuned variant against
+    the family paired by problem: Wilcoxon's two-sided p, Holm-adjusted over the families at
+    the budget, and A12 = P(tuned > default)."""
+    problems = per_problem(headline_trials(_with_measures(scores)))
+    families = [
+        (tuned, family, tuning_budgets[tuned])
+        for tuned, family in tuned_families(sorted(summary["optimizer"].unique()))
+        if tuned in tuning_budgets
+    ]
+    rows = []
+    for tuning_budget in sorted({b for _, _, b in families}):
+        budget = budget_label(Budget(max_evaluations=tuning_budget))
+        ranked = _ranking_rows(summary, budget)
+        defaults = ranked[[not _is_tuned(name) for name in ranked.index]]["norm_gap_median"]
+        here = [
+            (t, f)
+            for t, f, b in families
+            if b == tuning_budget and t in ranked.index and f in ranked.index
+        ]
+        tuned_medians = defaults.rename(index={f: t for t, f in here})
+        for tuned, _ in here:
+            tuned_medians[tuned] = ranked.loc[tuned, "norm_gap_median"]
+        default_rank, tuned_rank = _ranks(defaults), _ranks(tuned_medians)
+        found = []
+        for tuned, family in here:
+            x, y = (_problem_gaps(problems, name, ranked.loc[name, "budget"])
+                    for name in (tuned, family))  # fmt: skip
+            paired = pd.concat([x, y], axis=1, join="inner").dropna()
+            compared = stats.paired_comparison(paired.iloc[:, 0], paired.iloc[:, 1])
+            found.append(
+                {
+                    "budget": budget,
+                    "family": family,
+                    "tuned": tuned,
+                    "optimizers": len(defaults),
+                    "default_rank": default_rank[family],
+                    "tuned_rank": tuned_rank[tuned],
+                    "rank_change": int(default_rank[family] - tuned_rank[tuned]),
+                    **{f"default_{k}": ranked.loc[family, f"norm_gap_{k}"] for k in _MEDIAN},
+                    **{f"tuned_{k}": ranked.loc[tuned, f"norm_gap_{k}"] for k in _MEDIAN},
+                    "pairs": compared["pairs"],
+                    "p": compared["p"],
+                    "a12": compared["a12"],
+                }
+            )
+        stats.holm_family(found)
+        rows += found
+    columns = [
+        "budget", "family", "tuned", "optimizers", "default_rank", "tuned_rank", "rank_change",
+        *(f"default_{k}" for k in _MEDIAN), *(f"tuned_{k}" for k in _MEDIAN), "pairs", "p",
+        "p_holm", "significant", "a12",
+    ]  # fmt: skip
+    return pd.DataFrame(rows, columns=columns)
+
+
+_MEDIAN = ("median", "ci_low", "ci_high")
+
+
+def _problem_gaps(problems: pd.DataFrame, optimizer: str, budget: str) -> pd.Series:
+    """The normalised gap of each problem ``optimizer`` solved at ``budget``."""
+    mine = problems[(problems["optimizer"] == optimizer) & (problems["budget"] == budget)]
+    return mine.set_index("content_hash")["normalised_gap"].rename(optimizer)
 
 
 def ert_table(scores: pd.DataFrame) -> pd.DataFrame:
@@ -386,8 +499,10 @@ def to_markdown(
     *,
     library: str,
     notes: list[str] = (),
+    rank_change: pd.DataFrame | None = None,
 ) -> str:
-    """The leaderboard per budget, then the degenerate stratum, the phases and the paired
+    """The rank change of the families with a tuned variant (when ``rank_change`` has rows),
+    then the leaderboard per budget, the degenerate stratum, the phases and the paired
     comparisons at that budget."""
     targets = " | ".join(f"{t:.0e}" for t in SUCCESS_TARGETS[1:])
     lines = [
@@ -413,6 +528,8 @@ def to_markdown(
         *[f"Note: {note}" for note in notes],
         *([""] if notes else []),
     ]
+    if rank_change is not None and len(rank_change):
+        lines += _rank_change_section(rank_change)
     for budget in dict.fromkeys(
         [*summary["budget"], *degenerate["budget"], *phases["budget"], *paired["budget"]]
     ):
@@ -445,6 +562,40 @@ def to_markdown(
         lines += _phase_section(phases[phases["budget"] == budget])
         lines += _paired_section(paired[paired["budget"] == budget])
     return "\n".join(lines)
+
+
+def _rank_change_section(rows: pd.DataFrame) -> list[str]:
+    lines = []
+    for budget, at in rows.groupby("budget", sort=False):
+        lines += [
+            f"## Rank change with the tuned variants, budget {budget}",
+            "",
+            f"At {budget}, the evaluation budget per solve the tuned variants were tuned at, "
+            "every optimiser is ranked by its median normalised gap (rank 1: the lowest; one "
+            "without score runs at this budget, such as the derivative-based ones, ranks with "
+            "its runs at its own budget) twice: once with every family at its default "
+            "configuration (no tuned variant), once with each family below replaced by its "
+            "tuned variant `<family>-tuned` and every other optimiser unchanged; rank change = "
+            "default rank - tuned rank (positive: tuning moved the family up). Tuned against "
+            "default paired by problem: Wilcoxon signed-rank, two-sided, Holm-adjusted over "
+            "the families; A12 = P(tuned > default) of the normalised gap (below 0.5: the "
+            f"tuned variant leaves less). {at['optimizers'].iloc[0]} optimisers ranked.",
+            "",
+            "| family | default rank | tuned rank | rank change | default median normalised "
+            "gap [95 % CI] | tuned median normalised gap [95 % CI] | pairs | p Holm | A12 "
+            "tuned vs default |",
+            "|---|---|---|---|---|---|---|---|---|",
+        ]
+        for _, r in at.iterrows():
+            lines.append(
+                f"| {r['family']} | {r['default_rank']} | {r['tuned_rank']} | "
+                f"{r['rank_change']:+d} | {_g(r['default_median'])} [{_g(r['default_ci_low'])}, "
+                f"{_g(r['default_ci_high'])}] | {_g(r['tuned_median'])} "
+                f"[{_g(r['tuned_ci_low'])}, {_g(r['tuned_ci_high'])}] | {r['pairs']} | "
+                f"{_p(r['p_holm'])}{' *' if r['significant'] else ''} | {_g(r['a12'], '.2f')} |"
+            )
+        lines.append("")
+    return lines
 
 
 def _degenerate_section(rows: pd.DataFrame) -> list[str]:
@@ -550,7 +701,13 @@ def instance_splits(scores: pd.DataFrame) -> list[str]:
     return sorted(scores["split"].astype(str).unique())
 
 
-def write_score_report(scores: pd.DataFrame, folder: Path, *, figures: bool = True) -> str:
+def write_score_report(
+    scores: pd.DataFrame,
+    folder: Path,
+    *,
+    figures: bool = True,
+    tuning_budgets: dict[str, int] | None = None,
+) -> str:
     """Write every score file into ``folder``; returns the Markdown leaderboard. Raises
     :class:`~formation_bench.experiments.errors.StoreError` when runs were stored
     in an older score format.
@@ -559,13 +716,20 @@ def write_score_report(scores: pd.DataFrame, folder: Path, *, figures: bool = Tr
     from a run over split ``all`` beside a run over ``test``), each split has its own
     leaderboard and statistics, every table a ``split`` column, and every figure one file per
     split (``score_ecdf_test.png``, ...); a run over ``all`` counts in each split with the
-    instances of that split."""
+    instances of that split.
+
+    ``tuning_budgets`` (tuned variant -> the evaluation budget it was tuned at) places the
+    rank change of each family with a tuned variant (:func:`rank_change_table`); by default
+    the budgets the registered tuned variants record."""
     check_score_format(scores, "a report")
     folder.mkdir(parents=True, exist_ok=True)
+    tuning_notes: list[str] = []
+    if tuning_budgets is None:
+        tuning_budgets, tuning_notes = _tuning_budgets(scores)
     splits = instance_splits(scores)
     if len(splits) == 1:
-        tables = _score_tables(scores)
-        markdown = _markdown(scores, tables, _notes(scores))
+        tables = _score_tables(scores, tuning_budgets)
+        markdown = _markdown(scores, tables, [*_notes(scores), *tuning_notes])
         figure_sets = {"": (scores, tables["profile"])}
     else:
         shown = ", ".join(split or "none (a library without splits)" for split in splits)
@@ -575,7 +739,7 @@ def write_score_report(scores: pd.DataFrame, folder: Path, *, figures: bool = Tr
             "split all counts in each, with the instances of that split)."
         )
         parts = {split: scores[scores["split"].astype(str) == split] for split in splits}
-        per_split = {split: _score_tables(part) for split, part in parts.items()}
+        per_split = {split: _score_tables(part, tuning_budgets) for split, part in parts.items()}
         tables = {
             name: pd.concat(
                 [t[name].assign(split=split)[["split", *t[name].columns]]
@@ -585,7 +749,7 @@ def write_score_report(scores: pd.DataFrame, folder: Path, *, figures: bool = Tr
             for name in SCORE_TABLES
         }  # fmt: skip
         markdown = "\n\n".join(
-            _markdown(part, per_split[split], [note, *_notes(part)], split=split)
+            _markdown(part, per_split[split], [note, *_notes(part), *tuning_notes], split=split)
             for split, part in parts.items()
         )
         figure_sets = {split: (part, per_split[split]["profile"]) for split, part in parts.items()}
@@ -598,15 +762,17 @@ def write_score_report(scores: pd.DataFrame, folder: Path, *, figures: bool = Tr
     return markdown
 
 
-SCORE_TABLES = ("summary", "degenerate", "phases", "paired", "ert", "profile")
+SCORE_TABLES = ("summary", "degenerate", "phases", "paired", "ert", "profile", "rank_change")
 """The tables of a score report, each written to ``score_NAME.csv``."""
 
 
-def _score_tables(scores: pd.DataFrame) -> dict[str, pd.DataFrame]:
+def _score_tables(scores: pd.DataFrame, tuning_budgets: dict[str, int]) -> dict[str, pd.DataFrame]:
     tables = (
         summary_table, degenerate_table, phase_table, paired_table, ert_table, profile_table
     )  # fmt: skip
-    return {name: make(scores) for name, make in zip(SCORE_TABLES, tables, strict=True)}
+    made = {name: make(scores) for name, make in zip(SCORE_TABLES, tables, strict=False)}
+    made["rank_change"] = rank_change_table(scores, made["summary"], tuning_budgets)
+    return made
 
 
 def _markdown(
@@ -619,7 +785,25 @@ def _markdown(
         tables["paired"],
         library=_library_label(scores, split),
         notes=notes,
+        rank_change=tables["rank_change"],
     )
+
+
+def _tuning_budgets(scores: pd.DataFrame) -> tuple[dict[str, int], list[str]]:
+    """The budget every registered tuned variant in ``scores`` was tuned at, and a note
+    naming the variants ending in ``-tuned`` that are not registered tuned variants (left
+    out of the rank change)."""
+    from formation_bench.optimizers.tuned import tuned_data
+
+    tuned = [t for t, _ in tuned_families(sorted(scores["optimizer"].unique()))]
+    known = {t: int(data["objective"]["budget"]) for t in tuned if (data := tuned_data(t))}
+    unknown = [t for t in tuned if t not in known]
+    if not unknown:
+        return known, []
+    return known, [
+        f"{', '.join(unknown)}: not registered here as a tuned variant (no tuned-variant file), "
+        "so the budget it was tuned at is unknown and it has no rank change"
+    ]
 
 
 def _figures(scores: pd.DataFrame, profile: pd.DataFrame, folder: Path, split: str) -> None:

@@ -1,15 +1,18 @@
 """Each optimiser variant against the configuration it varies, paired by seed.
 
 A registered variant named ``<base><suffix>`` (for example ``pso-warm``, which starts part
-of its population around the warm start) is compared with ``<base>`` (``pso``) wherever a
-block of the results (scenario, trigger, budget) holds both, on every headline metric the
-runs carry: median of each, the median of the paired differences, Wilcoxon signed-rank
-(two-sided) Holm-adjusted over the pairs of a block and metric, and the Vargha-Delaney A12
-= P(variant > base) (below 0.5: the variant's values are lower). The closed-loop
-counterpart of the score report's paired table.
+of its population around the warm start, or ``pso-tuned``, its settings tuned) is compared
+with ``<base>`` (``pso``) wherever a block of the results (scenario, trigger, budget) holds
+both, on every headline metric the runs carry: median of each, the median of the paired
+differences, Wilcoxon signed-rank (two-sided) Holm-adjusted over the pairs of one kind
+(:data:`VARIANT_KINDS`) in a block and metric, and the Vargha-Delaney A12 = P(variant > base)
+(below 0.5: the variant's values are lower). The closed-loop counterpart of the score
+report's paired table.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import pandas as pd
 
@@ -18,21 +21,56 @@ from formation_bench.analysis.cells import metric_column, p_cell
 from formation_bench.analysis.comparison import prepare
 from formation_bench.mpc.metrics import headline_metrics
 
-VARIANT_SUFFIXES = ("-warm",)
+
+@dataclass(frozen=True)
+class VariantKind:
+    """A kind of variant: its name ending and how the reports name its comparison."""
+
+    suffix: str
+    comparison: str
+    """The kind of paired comparison, as the score report's paired table names it."""
+    what: str
+    """What the variant changes, for the text above a table of its pairs."""
+
+
+VARIANT_KINDS = (
+    VariantKind("-warm", "warm start against uniform start",
+                "part of the population started around the warm start"),
+    VariantKind("-tuned", "tuned against default", "settings tuned per solve"),
+    VariantKind("-tuned-loop", "tuned for the loop against default",
+                "settings tuned on a closed-loop metric"),
+)  # fmt: skip
+"""The variants compared with the configuration they vary, in the order the reports list
+their kinds."""
+VARIANT_SUFFIXES = tuple(kind.suffix for kind in VARIANT_KINDS)
 """Name endings of the variants compared with the configuration they vary."""
 BLOCK = ["scenario", "trigger", "budget"]
 
 
+def variant_kind(level: str, suffixes: tuple[str, ...] = VARIANT_SUFFIXES) -> str | None:
+    """The suffix that makes ``level`` a variant: the longest of ``suffixes`` it ends with
+    (``pso-warm-tuned`` is a tuned ``pso-warm``, whichever order the suffixes are in);
+    None for a name that ends with none."""
+    endings = [s for s in suffixes if level.endswith(s) and len(level) > len(s)]
+    return max(endings, key=len) if endings else None
+
+
 def variant_pairs(levels: list[str], suffixes: tuple[str, ...] = VARIANT_SUFFIXES) -> list:
-    """``(variant, base)`` for every level whose base (its name without the suffix) is a
-    level too, in the order of ``levels``."""
+    """``(variant, base)`` for every level whose base (its name without its suffix,
+    :func:`variant_kind`) is a level too, in the order of ``levels``."""
     present = set(levels)
-    return [
-        (level, level[: -len(suffix)])
-        for level in levels
-        for suffix in suffixes
-        if level.endswith(suffix) and level[: -len(suffix)] in present
-    ]
+    pairs = []
+    for level in levels:
+        suffix = variant_kind(level, suffixes)
+        if suffix is not None and level[: -len(suffix)] in present:
+            pairs.append((level, level[: -len(suffix)]))
+    return pairs
+
+
+def kind_of(variant: str) -> VariantKind:
+    """The :class:`VariantKind` of a level :func:`variant_pairs` paired."""
+    suffix = variant_kind(variant)
+    return next(kind for kind in VARIANT_KINDS if kind.suffix == suffix)
 
 
 def pair_table(results: pd.DataFrame, metrics: tuple[str, ...] | None = None) -> pd.DataFrame:
@@ -56,6 +94,7 @@ def pair_table(results: pd.DataFrame, metrics: tuple[str, ...] | None = None) ->
                     {
                         **dict(zip(BLOCK, block_values, strict=True)),
                         "metric": metric,
+                        "kind": kind_of(variant).comparison,
                         "variant": variant,
                         "base": base,
                         "n_pairs": compared.pop("pairs"),
@@ -66,7 +105,8 @@ def pair_table(results: pd.DataFrame, metrics: tuple[str, ...] | None = None) ->
                         **compared,
                     }
                 )
-            stats.holm_family(found)
+            for kind in dict.fromkeys(r["kind"] for r in found):
+                stats.holm_family([r for r in found if r["kind"] == kind])
             rows.extend(found)
     return pd.DataFrame(rows)
 
@@ -77,15 +117,7 @@ def to_markdown(table: pd.DataFrame) -> str:
     A12``; empty text when no pair applies."""
     if table.empty:
         return ""
-    lines = [
-        "## Variants against the configuration they vary",
-        "",
-        "Each `<name>-warm` variant against `<name>`, paired by seed. A cell: the variant's "
-        "median vs the base's, the Wilcoxon signed-rank p (two-sided, Holm-adjusted over the "
-        "pairs of the block and metric; * below 0.05) and A12 = P(variant > base) (< 0.5: lower "
-        "values than the base).",
-        "",
-    ]
+    lines = ["## Variants against the configuration they vary", "", _intro(table), ""]
     for (scenario, trigger, budget), block in table.groupby(BLOCK, sort=False):
         metrics = list(dict.fromkeys(block["metric"]))
         columns = [
@@ -110,3 +142,23 @@ def to_markdown(table: pd.DataFrame) -> str:
             lines.append(f"| {variant} | {base} | {pairs} | " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines).rstrip() + "\n"
+
+
+def _intro(table: pd.DataFrame) -> str:
+    """The text above the tables: the kinds of variant they hold and how a cell reads."""
+    kinds = [k for k in VARIANT_KINDS if k.comparison in set(table["kind"])]
+    if len(kinds) == 1:
+        held = f"Each `<name>{kinds[0].suffix}` variant against `<name>`"
+        family = "the pairs of the block and metric"
+    else:
+        held = (
+            "Each variant against `<name>`, the configuration it varies ("
+            + "; ".join(f"`<name>{k.suffix}`: {k.what}" for k in kinds)
+            + ")"
+        )
+        family = "the pairs of one kind of variant in the block and metric"
+    return (
+        f"{held}, paired by seed. A cell: the variant's median vs the base's, the Wilcoxon "
+        f"signed-rank p (two-sided, Holm-adjusted over {family}; * below 0.05) and A12 = "
+        "P(variant > base) (< 0.5: lower values than the base)."
+    )

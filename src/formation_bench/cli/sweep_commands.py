@@ -259,19 +259,16 @@ def cmd_report(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     results = Path(args.results)
     has_runs, has_scores = (results / "runs").is_dir(), (results / "score").is_dir()
-    if not has_runs and not has_scores:
-        raise StoreError(
-            f"{results} holds no results (no runs/ or score/ folder); run a sweep or score "
-            "into it first"
-        )
+    tuned = None if has_runs or has_scores else _tuned_variants(results, args)
     folder = Path(args.out) if args.out is not None else results / "report"
     if args.out is None:  # a folder chosen inside the one the user named
         confined(results, folder, "DIR")
     if args.page is not None:
         # every output is checked before any is written
-        from formation_bench.analysis.results_page import check_page
+        from formation_bench.analysis.results_page import check_page, tuning_image
 
-        check_page(Path(args.page), results, folder, overwrite=args.overwrite)
+        image = tuning_image(Path(args.page)) if tuned and args.figures else None
+        check_page(Path(args.page), results, folder, overwrite=args.overwrite, image=image)
         if has_runs:  # the page's provenance: a damaged manifest stops it before any output
             from formation_bench.experiments.manifest import read_manifest
             from formation_bench.experiments.store import ResultStore
@@ -300,14 +297,20 @@ def cmd_report(args: argparse.Namespace) -> int:
                 print(write_score_report(load_scores(results), staging, figures=args.figures))
                 written.append(
                     "score.md, score_summary.csv, score_degenerate.csv, score_phases.csv, "
-                    "score_paired.csv, score_ert.csv, score_profile.csv"
+                    "score_paired.csv, score_ert.csv, score_profile.csv, "
+                    "score_rank_change.csv"
                 )
+            if tuned:
+                from formation_bench.analysis.tuning_report import write_tuning_report
+
+                print(write_tuning_report(tuned, staging, figures=args.figures))
+                written.append("tuning.md, tuning.csv, tuning_curves.csv")
         if args.page is not None:
             from formation_bench.analysis.results_page import write_results_page
 
             write_results_page(
                 results, args.page, folder,
-                report=report, baseline=args.baseline, compare=args.compare,
+                report=report, baseline=args.baseline, compare=args.compare, tuned=tuned,
             )  # fmt: skip
     except (ReportError, OutputError) as err:
         print(f"formation-bench report: error: {err}", file=sys.stderr)
@@ -319,6 +322,28 @@ def cmd_report(args: argparse.Namespace) -> int:
     if args.page is not None:
         print(f"wrote the results page {args.page}")
     return 0
+
+
+def _tuned_variants(results: Path, args: argparse.Namespace) -> list:
+    """The checked tuned-variant files of a folder without runs or score runs; refuses a
+    folder without any, and the options that compare levels of runs."""
+    from formation_bench.analysis.tuning_report import TunedFileError, read_folder, tuned_files
+
+    if not tuned_files(results):
+        raise StoreError(
+            f"{results} holds no results (no runs/ or score/ folder, no tuned-variant files "
+            "NAME-tuned.json or NAME-tuned-loop.json); run a sweep, score or tune into it first"
+        )
+    for option, value in (("--baseline", args.baseline), ("--compare", args.compare)):
+        if value is not None:
+            raise StoreError(
+                f"{option}: {results} holds tuned-variant files, whose report compares no "
+                f"runs; leave {option} out"
+            )
+    try:
+        return read_folder(results)
+    except TunedFileError as err:
+        raise StoreError(str(err)) from None
 
 
 def cmd_export_ioh(args: argparse.Namespace) -> int:
@@ -515,7 +540,9 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
         For the runs of a sweep (DIR/runs): report.md and CSV tables (median, IQR and
         bootstrap CI; Wilcoxon tests against a baseline with Holm's correction and A12;
         Friedman test with average ranks and Nemenyi); for score runs (DIR/score): score.md
-        and its tables; with the seaborn figures in figures/. Writes to --out (default
+        and its tables; for a folder of tuned-variant files (NAME-tuned.json, written by
+        'tune'): tuning.md, its tables and the best value found against the trials; with the
+        seaborn figures in figures/. Writes to --out (default
         DIR/report), which appears only when complete, and prints the headline. --page FILE also
         writes a dated Markdown results page naming the commands that made the results.""",
         examples=(
@@ -528,10 +555,17 @@ def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
                 "formation-bench report results/comparison --page docs/results/comparison.md",
                 "and the documentation's dated results page",
             ),
+            (
+                "formation-bench report results/tuning --page docs/results/tuning.md",
+                "the tuned-variant files of 'tune --out results/tuning': the tuning page",
+            ),
         ),
     )
     report.add_argument(
-        "results", metavar="DIR", help="results folder written by 'sweep' or 'score'"
+        "results",
+        metavar="DIR",
+        help="results folder written by 'sweep' or 'score', or a folder of tuned-variant files "
+        "written by 'tune'",
     )
     report.add_argument(
         "--baseline",
