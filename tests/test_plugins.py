@@ -252,7 +252,7 @@ def test_plugin_settings_are_listed_and_a_bad_value_is_refused_before_the_run(tm
     plugin.write_text(PLUGIN_OPTIMIZER.format(name="file-search"))
     listing = cli("--plugin", str(plugin), "list", "--fields", "file-search")
     assert listing.returncode == 0, listing.stderr
-    assert "population_size = 8  (int; integer >= 1)" in listing.stdout
+    assert "population_size = 8  (int; integer >= 1; not tuned)" in listing.stdout
     assert "Points drawn per iteration" in listing.stdout
     out = tmp_path / "run"
     done = cli(

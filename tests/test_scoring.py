@@ -464,6 +464,9 @@ def test_tuned_pairs_join_the_paired_table_as_their_own_kind():
                                               ("pso-tuned", "pso")}  # fmt: skip
     assert kinds["tuned for the loop against default"] == {("pso-tuned-loop", "pso")}
     assert kinds["warm start against uniform start"] == {("pso-warm", "pso")}
+    # the ablation question at the best settings: each per-solve tuned variant against the
+    # tuned modified BSO (not the loop-tuned one, which is not tuned for solves)
+    assert kinds["tuned, against modified-bso-tuned"] == {("pso-tuned", "modified-bso-tuned")}
     # Holm within each kind: the two tuned pairs share a family, the warm pair has its own
     tuned = at[at["comparison"] == "tuned against default"]
     assert tuned["p_holm"].tolist() == pytest.approx([2 * 2**-11] * 2)

@@ -60,4 +60,4 @@ def test_tutorial_plugin_settings_are_listed_and_its_refusal_is_printed_as_shown
         capture_output=True, text=True, cwd=tmp_path, timeout=300,
     )  # fmt: skip
     assert listing.returncode == 0, listing.stderr
-    assert "population_size = 30  (int; integer >= 1)" in listing.stdout
+    assert "population_size = 30  (int; integer >= 1; not tuned)" in listing.stdout

@@ -72,6 +72,10 @@ PROFILE_TAUS = np.array([1, 1.5, 2, 3, 5, 10, 20, 50, 100], dtype=float)
 """Factors of the performance profile."""
 BASELINE = "modified-bso"
 """The optimiser every other one is compared with, when the scores hold it."""
+TUNED_BASELINE = f"{BASELINE}-tuned"
+"""The baseline tuned: every other per-solve tuned variant is compared with it too, so that a
+question asked of the defaults (do the modifications help?) is asked again at the best
+settings of each."""
 WARM_TOLERANCE = 1e-9
 """Relative: a final cost within this of the warm start's cost counts as returning it."""
 
@@ -244,13 +248,20 @@ def phase_table(scores: pd.DataFrame) -> pd.DataFrame:
 
 def comparisons(optimizers: list[str], leader: str | None = None) -> list[tuple[str, str, str]]:
     """``(kind, x, y)`` of the paired comparisons among ``optimizers``: each against
-    :data:`BASELINE` when it is there, each against ``leader`` (the best at the budget, when
-    given and not the baseline), each variant (``X-warm``, ``X-tuned``, ``X-tuned-loop``)
+    :data:`BASELINE` when it is there, each per-solve tuned variant against
+    :data:`TUNED_BASELINE` when it is there, each against ``leader`` (the best at the budget,
+    when given and not the baseline), each variant (``X-warm``, ``X-tuned``, ``X-tuned-loop``)
     against ``X``, one kind of comparison per kind of variant."""
     present = set(optimizers)
     found = []
     if BASELINE in present:
         found += [(f"against {BASELINE}", x, BASELINE) for x in optimizers if x != BASELINE]
+    if TUNED_BASELINE in present:
+        found += [
+            (f"tuned, against {TUNED_BASELINE}", x, TUNED_BASELINE)
+            for x in optimizers
+            if x != TUNED_BASELINE and x.endswith("-tuned")
+        ]
     if leader is not None and leader != BASELINE and leader in present:
         kind = f"against the leader, {leader}"
         found += [(kind, x, leader) for x in optimizers if x != leader]
