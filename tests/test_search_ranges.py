@@ -26,6 +26,7 @@ from formation_bench.fields import (
     searched_values,
 )
 from formation_bench.optimizers import OPTIMIZERS, Bounds, Budget, Optimizer
+from formation_bench.optimizers.tuned import is_tuned
 
 
 def searched(optimizer: Any) -> list[tuple[str, Setting]]:
@@ -38,6 +39,10 @@ def searched(optimizer: Any) -> list[tuple[str, Setting]]:
 
 
 TUNED = sorted(name for name in OPTIMIZERS if searched(OPTIMIZERS[name].optimizer))
+KNOBS = [name for name in TUNED if not is_tuned(name)]
+"""The names whose settings are checked to be real knobs: a tuned variant is another
+configuration of a class its base already covers, and at a tuned point a setting may move
+nothing on the small test problem (one choice probability under another near 0 or 1)."""
 
 FAMILIES = {
     "modified-bso": ("modified-bso", "modified-bso-no-chaos-replacement",
@@ -229,7 +234,7 @@ def with_value(optimizer: Any, field: str, value: Any) -> Any:
 
 # slow: about 2.6 s for every registered name together (the kernels compiled)
 @pytest.mark.slow
-@pytest.mark.parametrize("name", TUNED)
+@pytest.mark.parametrize("name", KNOBS)
 def test_each_searched_setting_changes_a_small_solve(name: str):
     optimizer = OPTIMIZERS[name].optimizer
     base = solve(optimizer)

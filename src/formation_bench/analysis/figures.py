@@ -365,19 +365,25 @@ def tuning_figure(curves: pd.DataFrame) -> plt.Figure:
     sns.set_theme(style="whitegrid")
     kinds = list(dict.fromkeys(curves["objective"]))
     fig, axes = plt.subplots(
-        1, len(kinds), figsize=(6.5 * len(kinds), 4.6), squeeze=False, constrained_layout=True
+        1, len(kinds), figsize=(6.5 * len(kinds), 6.4), squeeze=False, constrained_layout=True
     )
     for ax, kind in zip(axes[0], kinds, strict=True):
-        for variant, curve in curves[curves["objective"] == kind].groupby("variant", sort=False):
+        groups = list(curves[curves["objective"] == kind].groupby("variant", sort=False))
+        # a colour and a dash per variant: the ten default colours would repeat for the twelve
+        # families, two curves alike
+        colours = sns.color_palette("tab20", len(groups))
+        for k, (variant, curve) in enumerate(groups):
             (line,) = ax.step(
-                curve["trials"], curve["best_so_far_relative"], where="post", label=variant
-            )
+                curve["trials"], curve["best_so_far_relative"], where="post", label=variant,
+                color=colours[k], linestyle=("-", "--", ":")[k % 3],
+            )  # fmt: skip
             flat = curve[curve["flattening_point"]]
             ax.plot(flat["trials"], flat["best_so_far_relative"], "o", color=line.get_color())
         ax.set_xlabel("trials (dot: flattening point)")
         ax.set_ylabel("best value found so far / default value")
         ax.set_title(f"objective: {kind}", fontsize=10)
-        ax.legend(fontsize=7, loc="upper right")
+        # below the panel: above it, the legend hides the first trials' curves
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
     return fig
 
 
