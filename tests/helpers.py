@@ -9,7 +9,8 @@ from collections.abc import Callable
 import numpy as np
 
 from formation_bench.fields import describe_fields
-from formation_bench.optimizers import Bounds, Optimizer
+from formation_bench.optimizers import Bounds, Optimizer, optimizer_names
+from formation_bench.optimizers.tuned import is_tuned
 
 D = 10
 """Dimension of the shared test problems."""
@@ -73,3 +74,10 @@ def budget_settings(optimizer: Optimizer) -> list[str]:
         if info.value + 1 in (budget.max_iterations, budget.max_evaluations):
             found.append(info.name)
     return found
+
+
+def configured_names() -> list[str]:
+    """Every registered optimiser but the shipped tuned variants: the tests over the registry
+    check each class and hand-written configuration; a tuned variant is other values of a class
+    its base name covers, and tests/test_tuned_variants.py checks each one on the MPC problem."""
+    return [name for name in optimizer_names() if not is_tuned(name)]

@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 import pytest
+from helpers import configured_names
 from test_cost_and_problem import random_problem
 
 from formation_bench.mpc.scenario import PAPER
@@ -44,7 +45,6 @@ from formation_bench.optimizers.compiled import (
     new_tally,
 )
 from formation_bench.optimizers.population import ROWS_AHEAD
-from formation_bench.optimizers.registry import optimizer_names
 from formation_bench.optimizers.tallies import dressed, plain
 
 
@@ -95,7 +95,7 @@ class PlainCallable:
 def compiled_loop_optimizers() -> list[str]:
     return [
         name
-        for name in optimizer_names()
+        for name in configured_names()
         if isinstance(get_optimizer(name), PopulationOptimizer)
         and get_optimizer(name).has_compiled_loop()
     ]
@@ -164,7 +164,7 @@ def test_the_paper_optimiser_has_a_compiled_loop():
 
 def test_pso_and_random_search_have_a_compiled_loop():
     names = set(compiled_loop_optimizers())
-    pso_names = {n for n in optimizer_names() if isinstance(get_optimizer(n), PSO)}
+    pso_names = {n for n in configured_names() if isinstance(get_optimizer(n), PSO)}
     assert {"pso", "pso-constriction", "chaotic-pso"} <= pso_names <= names
     assert "random-search" in names
 

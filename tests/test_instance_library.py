@@ -5,6 +5,7 @@ from collections import Counter, defaultdict
 
 import numpy as np
 import pytest
+from helpers import configured_names
 
 from formation_bench.analysis.scoring import TARGETS
 from formation_bench.instances import build as build_module
@@ -197,7 +198,7 @@ J_STAR_QUICK = {"modified-bso", "cma-es", "de", "mppi", "cem", "ilqr", "ltv-osqp
     # every optimiser in CI; a few kinds in plain pytest (the 43 solves take 28 s)
     [
         n if n in J_STAR_QUICK else pytest.param(n, marks=pytest.mark.slow)
-        for n in sorted(OPTIMIZERS)
+        for n in configured_names()
     ],
 )
 def test_no_registered_optimizer_at_its_default_budget_beats_j_star(library, name):

@@ -10,17 +10,18 @@ import json
 
 import numpy as np
 import pytest
+from helpers import configured_names
 
 from formation_bench.cli.main import main
 from formation_bench.mpc.loop import simulate
 from formation_bench.mpc.scenario import get_scenario
-from formation_bench.optimizers import PopulationOptimizer, get_optimizer, optimizer_names
+from formation_bench.optimizers import PopulationOptimizer, get_optimizer
 from formation_bench.optimizers.adapters import ADAPTERS
 
 SHORT = get_scenario("paper", n_steps=6, settle_time_s=0.0)
 SHORTER = get_scenario("paper", n_steps=2, settle_time_s=0.0)
 """For the adapters, whose solves take up to a second (docs/how-to/adapters.md)."""
-POPULATION = [n for n in optimizer_names() if isinstance(get_optimizer(n), PopulationOptimizer)]
+POPULATION = [n for n in configured_names() if isinstance(get_optimizer(n), PopulationOptimizer)]
 
 
 # the adapters' libraries make a solve 30-650 times slower (docs/how-to/adapters.md)

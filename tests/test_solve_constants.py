@@ -7,15 +7,15 @@ import pickle
 
 import numpy as np
 import pytest
-from helpers import BOX, CENTRE, shifted_sphere
+from helpers import BOX, CENTRE, configured_names, shifted_sphere
 
-from formation_bench.optimizers import Bounds, Budget, get_optimizer, optimizer_names
+from formation_bench.optimizers import Bounds, Budget, get_optimizer
 from formation_bench.optimizers.ask_tell import AskTellOptimizer
 
 sphere = shifted_sphere(CENTRE)
 ASK_TELL = [
     name
-    for name in optimizer_names()
+    for name in configured_names()
     if not name.startswith("ng-") and isinstance(get_optimizer(name), AskTellOptimizer)
 ]
 OTHER_BOX = Bounds(BOX.lower * 0.5, BOX.upper * 2.0)
