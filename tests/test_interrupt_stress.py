@@ -97,13 +97,20 @@ def test_ctrl_c_inside_numbas_boxing_is_raised_after_the_call_returns():
 
 
 @pytest.mark.slow
-def test_ctrl_c_inside_numbas_unboxing_of_a_generator_is_raised_after_the_call_returns():
-    # numba unboxes a numpy Generator by calling ctypes.cast three times and reads what each
-    # returned without checking it: a Ctrl-C raised inside one crashed a run's first draw of
-    # standard normals (population.standard_normals)
+@pytest.mark.parametrize(
+    "target",
+    # numba's own casts, and what numpy runs in Python the first time a bit generator's ctypes
+    # interface is asked for (a new Generator: every solve's)
+    ["ctypes.cast", "ctypes.CFUNCTYPE", "numpy.random._common.interface.__new__"],
+)
+def test_ctrl_c_inside_numbas_unboxing_of_a_generator_is_raised_after_the_call_returns(target):
+    # numba unboxes a numpy Generator through its bit generator's ctypes interface and reads
+    # what each Python call returned without checking it: a Ctrl-C raised inside one crashed
+    # a run's first draw of standard normals (population.standard_normals)
     setup = """
         import ctypes, signal, sys, time
         import numpy as np
+        import numpy.random._common
         from numba import njit
         from formation_bench.pipeline.interrupts import raise_interrupt
 
@@ -116,7 +123,7 @@ def test_ctrl_c_inside_numbas_unboxing_of_a_generator_is_raised_after_the_call_r
         normals(np.random.default_rng(0), np.empty(4))
     """
     printed = printed_when_pressed_inside(
-        setup, "ctypes.cast.__code__", "normals(np.random.default_rng(1), np.empty(4))",
+        setup, f"{target}.__code__", "normals(np.random.default_rng(1), np.empty(4))",
         '"drawn", bool(np.isfinite(result).all()), len(pressed)',
     )  # fmt: skip
     assert printed == ["drawn True 1", "raised KeyboardInterrupt"]

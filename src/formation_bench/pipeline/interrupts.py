@@ -10,8 +10,10 @@ exception raised there leaves the boxing in no defined state: it reached Python 
 compiled function's first return (numba's lookup of the type not yet memoised, so the next
 array's lookup catches a ``KeyError``, which replaces the interrupt), it was lost and the
 call returned a tuple holding ``NULL``: a segmentation fault when Python read it. Unboxing a
-numpy ``Generator`` for a compiled draw, numba calls ``ctypes.cast`` three times and reads
-each result unchecked: an exception raised inside one is a segmentation fault at once.
+numpy ``Generator`` for a compiled draw, numba calls ``ctypes.cast`` three times, and numpy
+builds the bit generator's ctypes interface in Python (``ctypes.CFUNCTYPE``, a namedtuple),
+and each result is read unchecked: an exception raised inside one is a segmentation fault at
+once.
 llvmlite's object-cache callbacks, which numba's compiler runs, print and drop an exception
 raised in them, so a Ctrl-C there was lost, and its bindings mark an LLVM object handed to
 LLVM as owned a statement after the C call that hands it over (an exception between them
@@ -59,12 +61,20 @@ def is_interrupt(error: BaseException) -> bool:
 def _unchecked_callbacks() -> set[CodeType]:
     """The Python functions that compiled code calls without checking for an exception (a
     library not imported has run no compiled code): numba's type lookup while it boxes an
-    array, and ``ctypes.cast``, which its unboxing of a numpy ``Generator`` calls three times
-    and whose failed result it then reads (a segmentation fault)."""
+    array, and what its unboxing of a numpy ``Generator`` runs in Python and then reads
+    unchecked (a segmentation fault): ``ctypes.cast``, which it calls three times, and, the
+    first time a bit generator's ctypes interface is asked for (every new Generator's),
+    numpy's ``ctypes.CFUNCTYPE`` calls and the interface namedtuple's ``__new__``."""
     serialize = sys.modules.get("numba.core.serialize")
     if serialize is None:
         return set()
-    return {serialize._numba_unpickle.__code__, ctypes.cast.__code__}
+    unchecked = {serialize._numba_unpickle.__code__, ctypes.cast.__code__}
+    unchecked.add(ctypes.CFUNCTYPE.__code__)
+    common = sys.modules.get("numpy.random._common")
+    interface = getattr(common, "interface", None)
+    if interface is not None:
+        unchecked.add(interface.__new__.__code__)
+    return unchecked
 
 
 def _llvm_bindings() -> str | None:
