@@ -146,13 +146,21 @@ def warm_up_solve(
     optimizer.forget_solves()
 
 
+WARM_UP_PERIODS = 2
+"""Control periods of a warm-up loop: the first solves from no plan and checks no trigger
+condition; the second checks them all and solves warm-started, so that a timed run compiles
+nothing the warm-up did not (the trigger's kernels once cost a sweep's first run 0.4-1 s)."""
+
+
 def warm_up_loop(scenario: Scenario, optimizer: Optimizer, budget: Budget | None) -> None:
-    """One untimed instant of the closed loop of ``scenario`` (every UAV solves once): the
-    harness's kernels and ``optimizer``'s compiled or built on the problems the run solves."""
+    """Untimed first instants of the closed loop of ``scenario`` (:data:`WARM_UP_PERIODS`, every
+    UAV solving at each): the harness's kernels and ``optimizer``'s compiled or built on the
+    problems the run solves."""
     with compile_garbage_collected():
         warm_up_kernels()
         loop = ClosedLoop(scenario, optimizer, trigger=False, seed=WARM_UP_SEED, budget=budget)
-        loop.control_period(0)
+        for c in range(min(WARM_UP_PERIODS, scenario.timing.n_steps)):
+            loop.control_period(c)
     optimizer.forget_solves()
 
 
