@@ -165,3 +165,43 @@ def test_peer_pso_script_pairs_the_package_pso_with_mealpy_on_the_same_problems(
     printed = capsys.readouterr().out
     assert "3 test problems, 300 evaluations, seed 0" in printed
     assert "pso vs mealpy OriginalPSO: lower on" in printed and " of 3," in printed
+
+
+def test_cold_warm_script_states_each_target_met_or_missed():
+    from perf.cold_warm import ColdWarm, format_results
+
+    commands = [
+        ColdWarm("reproduce", cold_s=9.0, warm_s=4.0, compile_cpu_s=5.0, compiles=80),
+        ColdWarm("sweep", cold_s=130.0, warm_s=100.0, compile_cpu_s=0.0, compiles=0),
+        ColdWarm("score", cold_s=20.0, warm_s=5.0, compile_cpu_s=14.0, compiles=90),
+    ]
+    optimizers = [
+        ColdWarm("pso", cold_s=5.5, warm_s=3.0, compile_cpu_s=2.0, compiles=10),
+        ColdWarm("cma-es", cold_s=40.0, warm_s=3.0, compile_cpu_s=35.0, compiles=60),
+    ]
+    text = format_results(commands, optimizers)
+    assert "| `reproduce` | 9.0 s | 4.0 s | 5.0 s | 2.2x | 5.0 s (80) | missed (<= 2x) |" in text
+    assert "| `sweep` | 130.0 s | 100.0 s | 30.0 s | 1.3x | 0.0 s (0) | met (<= 1.3x) |" in text
+    assert (
+        text.count("| `score` |") == 1
+        and "| `score` | 20.0 s | 5.0 s | 15.0 s | 4.0x | 14.0 s (90) |  |" in text
+    )
+    assert "| pso | 5.5 s | 3.0 s | 2.5 s | 1.8x | 2.0 s (10) | met (<= 3 s) |" in text
+    assert "| cma-es | 40.0 s | 3.0 s | 37.0 s | 13.3x | 35.0 s (60) | missed (<= 3 s) |" in text
+    assert "within 3 s of the warm run: 1 of 2; compile CPU summed: 37 s" in text
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--commands", "report"], "--commands: unknown report; allowed: run, reproduce"),
+        (["--optimizers", "no-such"], "--optimizers: not registered: no-such"),
+    ],
+)
+def test_cold_warm_script_refuses_what_it_cannot_measure(args, message, capsys):
+    from perf import cold_warm
+
+    with pytest.raises(SystemExit) as stop:
+        cold_warm.main(args)
+    assert stop.value.code == 2
+    assert message in capsys.readouterr().err

@@ -9,6 +9,8 @@ import pandas as pd
 import pytest
 
 from formation_bench.analysis.tuning_report import (
+    FLAT_TRIALS,
+    flattening_sentence,
     flattening_trials,
     read_folder,
     read_tuned,
@@ -104,7 +106,29 @@ def test_the_flattening_point_and_the_table_by_hand(tmp_path):
     assert "de-tuned-loop 4 of 4; pso-tuned 3 of 6." in markdown
     assert "The largest: 4 trials (de-tuned-loop)." in markdown
     assert "Still improving by 1 % or more at its last trial: de-tuned-loop." in markdown
+    # six trials, three of them flat: short of the 25 the rule asks for
+    assert (
+        "Not flattened (no such gain in the last 25 trials or more): de-tuned-loop, pso-tuned."
+        in markdown
+    )
     assert "suite comparison, seeds 1000, 1001, 1002" in markdown
+
+
+def test_a_curve_has_flattened_after_that_many_trials_without_a_gain(tmp_path):
+    folder = tmp_path / "tuning"
+    folder.mkdir()
+    # the last gain of 1 % or more at trial 3, then FLAT_TRIALS trials that gain less
+    tuned_file(folder, "pso", [1.0, 0.8, 0.5] + [0.4999] * FLAT_TRIALS)
+    # one trial fewer: one short of the rule
+    tuned_file(folder, "de", [1.0, 0.8, 0.5] + [0.4999] * (FLAT_TRIALS - 1))
+    variants = {v.name: v for v in read_folder(folder)}
+    assert flattening_trials(variants["pso-tuned"]) == 3
+    assert flattening_sentence([variants["pso-tuned"]]).endswith(
+        f"Every curve has flattened (no such gain in the last {FLAT_TRIALS} trials or more)."
+    )
+    assert flattening_sentence(list(variants.values())).endswith(
+        f"Not flattened (no such gain in the last {FLAT_TRIALS} trials or more): de-tuned."
+    )
 
 
 def test_the_tuning_page_and_its_figure_beside_it(tmp_path, capsys):

@@ -45,6 +45,10 @@ KIND_SUFFIXES = {"solve": "-tuned", "loop": "-tuned-loop"}
 FLAT_SHARE = 0.01
 """The flattening point: the best value found so far improves by less than this share of the
 default value after it."""
+FLAT_TRIALS = 25
+"""A curve has flattened when its flattening point lies at least this many trials before its
+last trial: that many trials in a row found no gain of :data:`FLAT_SHARE` (six batches of the
+tuner's default four, and an eighth of the per-solve count)."""
 FIGURE = "tuning_best_so_far.png"
 """The figure's file name in the report folder's ``figures/``."""
 
@@ -436,6 +440,12 @@ def flattening_sentence(variants: list[TunedVariant]) -> str:
                 f" Still improving by {FLAT_SHARE * 100:g} % or more at its last trial: "
                 f"{', '.join(still)}."
             )
+        short = [name for name, (t, n) in known.items() if n - t < FLAT_TRIALS]
+        rule = f"no such gain in the last {FLAT_TRIALS} trials or more"
+        if short:
+            sentence += f" Not flattened ({rule}): {', '.join(short)}."
+        else:
+            sentence += f" Every curve has flattened ({rule})."
     return sentence
 
 
