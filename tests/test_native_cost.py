@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import ctypes
+import os
 import shutil
+import subprocess
+import sys
 import sysconfig
 
 import numpy as np
@@ -89,7 +92,10 @@ def test_c_kernel_is_the_numba_kernel_to_the_bit(c_cost, instance):
     bounds = problem.bounds
     for n in BATCH_SIZES:
         decisions = bounds.lower + rng.random((n, problem.dim)) * bounds.width
-        assert np.array_equal(c_costs(c_cost, decisions, problem.packed), problem(decisions))
+        numba = packed_batch_cost(decisions, problem.packed)
+        assert np.array_equal(c_costs(c_cost, decisions, problem.packed), numba)
+        # a call from Python takes the kernel the solve loops take: C here
+        assert np.array_equal(problem(decisions), numba)
 
 
 @pytest.mark.parametrize("instance", FAMILIES, ids=lambda i: f"{i.problem.scenario.name}-{i.index}")
@@ -147,6 +153,35 @@ def test_kernel_choice_from_the_environment(monkeypatch):
     monkeypatch.setenv(KERNEL_VARIABLE, "fortran")
     with pytest.raises(ValueError, match=f"{KERNEL_VARIABLE} must be one of auto, c, numba"):
         chosen_kernel()
+
+
+def test_a_call_from_python_takes_the_chosen_kernel(c_cost, monkeypatch):
+    problem = FAMILIES[0].problem
+    decisions = np.ascontiguousarray(problem.bounds.lower + 0.3 * problem.bounds.width)[None]
+    calls = []
+    monkeypatch.setattr(native_cost, "_c_cost", lambda address: lambda *a: calls.append(a))
+    problem(decisions)
+    assert len(calls) == 1  # the C kernel, as the compiled loops
+    monkeypatch.setenv(KERNEL_VARIABLE, "numba")
+    assert np.array_equal(problem(decisions), packed_batch_cost(decisions, problem.packed))
+    assert len(calls) == 1
+    assert problem(np.empty((0, problem.dim))).shape == (0,)
+
+
+def test_a_process_the_c_kernel_serves_never_compiles_the_numba_one(c_cost):
+    # a fresh process: this one has compiled it for the tests above
+    script = (
+        "from formation_bench.pipeline.runner import warm_up_kernels\n"
+        "from formation_bench.mpc.cost import packed_batch_cost\n"
+        "warm_up_kernels()\n"
+        "print(len(packed_batch_cost.overloads))\n"
+    )
+    env = {key: value for key, value in os.environ.items() if key != KERNEL_VARIABLE}
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=300, env=env
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["0"]
 
 
 def test_asking_for_c_without_it_says_how_to_get_it(monkeypatch):

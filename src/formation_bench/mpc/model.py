@@ -233,7 +233,11 @@ def step_plant(
     """Advance every UAV by one period: ``(N, 4), (N, 2) -> (N, 4)``."""
     out = np.empty_like(states)
     for i in range(states.shape[0]):
-        out[i] = rollout(states[i], controls[i : i + 1], period, substeps)[1]
+        reached = rollout(states[i], controls[i : i + 1], period, substeps)[1]
+        # element by element: a row assignment makes numba compile its shape-mismatch error,
+        # and with it string formatting (about 2 s of a first run's compile)
+        for k in range(reached.shape[0]):
+            out[i, k] = reached[k]
     return out
 
 

@@ -22,11 +22,10 @@ from formation_bench.mpc.cost import (
     Penalties,
     block_map,
     pack_problem,
-    packed_batch_cost,
     reference_cost,
 )
 from formation_bench.mpc.model import rollout
-from formation_bench.mpc.native_cost import cost_function
+from formation_bench.mpc.native_cost import cost_function, packed_costs
 from formation_bench.mpc.scenario import EstimateExtension, Scenario
 from formation_bench.optimizers.base import Bounds
 from formation_bench.optimizers.compiled import CompiledObjective
@@ -224,7 +223,7 @@ class LocalProblem:
         decisions = np.ascontiguousarray(decisions, dtype=np.float64)
         if decisions.ndim != 2 or decisions.shape[1] != self.dim:
             raise ValueError(f"decisions must have shape (n, {self.dim}), got {decisions.shape}")
-        return packed_batch_cost(decisions, self.packed)
+        return packed_costs(decisions, self.packed)
 
     @functools.cached_property
     def packed(self) -> np.ndarray:

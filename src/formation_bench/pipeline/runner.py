@@ -15,11 +15,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from formation_bench.mpc.cost import Penalties, pack_problem, packed_batch_cost
+from formation_bench.mpc.cost import Penalties, pack_problem
 from formation_bench.mpc.loop import ClosedLoop, ProgressCallback, Trace, simulate
 from formation_bench.mpc.metrics import compute_metrics
 from formation_bench.mpc.model import rollout
-from formation_bench.mpc.native_cost import cost_function
+from formation_bench.mpc.native_cost import CostKernel, cost_function, packed_costs
 from formation_bench.pipeline import outputs
 from formation_bench.pipeline.interrupts import interrupts_where_safe
 from formation_bench.pipeline.record import Provenance, RunDescription, RunRecord
@@ -68,11 +68,12 @@ def kernels_cached() -> bool:
 
     harness = (
         model.rollout,
-        cost.packed_batch_cost,
         trigger.distance_condition,
         trigger.tracking_condition,
         trigger.control_condition,
     )
+    if cost_function().kernel is CostKernel.NUMBA:  # compiled only when it serves
+        harness += (cost.packed_batch_cost,)
     return all(kernel_cached(kernel) for kernel in harness)
 
 
@@ -107,8 +108,7 @@ def warm_up_kernels() -> None:
         state, np.zeros(2, dtype=np.int64), 0.1, 1, np.zeros((1, 2, 2)), np.zeros((2, 2)),
         1.0, 1.0, np.zeros((1, 2, 2)), Penalties(),
     )  # fmt: skip
-    packed_batch_cost(np.zeros((2, 2)), packed)
-    cost_function()
+    packed_costs(np.zeros((2, 2)), packed)
 
 
 @contextlib.contextmanager
