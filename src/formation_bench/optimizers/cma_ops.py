@@ -22,6 +22,12 @@ and the counters, come back in new parts): a block of generations copies its run
 Rebuilding every array of a run each generation, as a purely functional update would, made a
 solve some 10 % slower than writing the same arithmetic in place.
 
+**Compiled once, called.** :func:`learn`, :func:`update_distribution`, :func:`refresh`,
+:func:`stop_code` and :func:`sample` are compiled functions of their own that the ask and tell
+kernels call, not inlined into them: numba types an inlined body again inside every caller, and
+with all five inlined into the solve loop a first run compiled CMA-ES in 55 s of CPU, against
+30 s called, with the same solve time and the same numbers.
+
 **Eigendecomposition.** Refreshed lazily, when more than
 ``0.5 lambda / (n (c_1 + c_mu))`` evaluations passed since the last one (the
 gap of Hansen's pure-Python reference implementation, ``purecma``): every second
@@ -373,7 +379,7 @@ def ranking(costs: np.ndarray, order: np.ndarray) -> np.ndarray:
     return order
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def learn(run, settings, plan, iteration):  # type: ignore[no-untyped-def]
     """``run`` after the update from its told samples' costs: :func:`update_distribution`,
     the eigendecomposition when it is due, the TolFun history and the stop check
@@ -414,7 +420,7 @@ def learn(run, settings, plan, iteration):  # type: ignore[no-untyped-def]
     return CMARun(distribution, samples, progress, strategy, work)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def update_distribution(distribution, strategy, samples, order, generation, pycma_test, work):  # type: ignore[no-untyped-def]
     """The tutorial's update (Fig. 6, c_m = 1) of mean, paths and C, in place, and the new
     sigma (returned; the eigensystem is still the old one).
@@ -505,7 +511,7 @@ def mahalanobis(inv_sqrt: np.ndarray, y: np.ndarray) -> float:
     return math.sqrt(total)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def refresh(distribution, work):  # type: ignore[no-untyped-def]
     """B, D and C^(-1/2) of ``distribution``'s C, written into its arrays; returns cond(C).
 
@@ -552,7 +558,7 @@ def refresh(distribution, work):  # type: ignore[no-untyped-def]
     return condition
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def stop_code(distribution, progress, costs, condition, settings, plan):  # type: ignore[no-untyped-def]
     """Which stop criterion of the tutorial's appendix B.3 the updated run meets (0: none).
 
@@ -616,7 +622,7 @@ def stop_code(distribution, progress, costs, condition, settings, plan):  # type
 # --- sampling -----------------------------------------------------------------------------------
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def sample(distribution, normals, uniforms, settings, samples):  # type: ignore[no-untyped-def]
     """lambda samples ``m + sigma B (D * z)``, ``z`` the rows of ``normals`` (lambda x n),
     written into ``samples`` (costs NaN until told), their points in box coordinates.
