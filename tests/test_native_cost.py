@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ctypes
 import os
+import pickle
 import shutil
 import subprocess
 import sys
@@ -159,13 +160,41 @@ def test_a_call_from_python_takes_the_chosen_kernel(c_cost, monkeypatch):
     problem = FAMILIES[0].problem
     decisions = np.ascontiguousarray(problem.bounds.lower + 0.3 * problem.bounds.width)[None]
     calls = []
-    monkeypatch.setattr(native_cost, "_c_cost", lambda address: lambda *a: calls.append(a))
-    problem(decisions)
+    entry = native_cost._c_costs()
+    assert entry is not None  # built with the kernel: calls from Python take it
+
+    def counted(*args):
+        calls.append(args)
+        return entry(*args)
+
+    monkeypatch.setattr(native_cost, "_c_costs", lambda: counted)
+    fresh = pickle.loads(pickle.dumps(problem))  # without a chosen kernel
+    assert np.array_equal(fresh(decisions), packed_batch_cost(decisions, problem.packed))
     assert len(calls) == 1  # the C kernel, as the compiled loops
     monkeypatch.setenv(KERNEL_VARIABLE, "numba")
-    assert np.array_equal(problem(decisions), packed_batch_cost(decisions, problem.packed))
-    assert len(calls) == 1
-    assert problem(np.empty((0, problem.dim))).shape == (0,)
+    numba_problem = pickle.loads(pickle.dumps(problem))  # chosen at a problem's first call
+    assert np.array_equal(numba_problem(decisions), fresh(decisions))
+    assert len(calls) == 2  # the first problem kept its kernel; the new one took numba's
+    assert fresh(np.empty((0, problem.dim))).shape == (0,)
+    pickle.loads(pickle.dumps(fresh))(decisions)  # the chosen kernel is not pickled
+
+
+@pytest.mark.parametrize(
+    ("decisions", "packed", "out", "message"),
+    [
+        (np.zeros((2, 3), dtype=np.float32), np.zeros(9), np.zeros(2), "decisions must be"),
+        (np.zeros((2, 3)).T, np.zeros(9), np.zeros(3), "not C-contiguous"),
+        (np.zeros((2, 3)), np.zeros((3, 3)), np.zeros(2), "packed must be"),
+        (np.zeros((2, 3)), np.zeros(9), np.zeros(3), "one entry per row"),
+        (np.zeros((2, 3)), np.zeros(0), np.zeros(2), "packed is empty"),
+    ],
+)
+def test_the_c_entry_refuses_what_it_cannot_read(c_cost, decisions, packed, out, message):
+    # numpy refuses a C-contiguous view of a strided array itself (BufferError)
+    with pytest.raises((ValueError, BufferError), match=message):
+        native_cost._c_costs()(decisions, packed, out)
+    with pytest.raises(TypeError, match="takes 3 arguments"):
+        native_cost._c_costs()(decisions, packed)
 
 
 def test_a_process_the_c_kernel_serves_never_compiles_the_numba_one(c_cost):

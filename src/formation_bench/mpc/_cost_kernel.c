@@ -17,6 +17,7 @@
 #include <Python.h>
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
 
 #define PACKED_HEADER 10 /* cost.PACKED_HEADER */
 #define HEADING_RESET_SUBSTEPS 16 /* model.HEADING_RESET_SUBSTEPS */
@@ -227,7 +228,62 @@ static PyObject *multiply_add_chains(PyObject *self, PyObject *args) {
     return PyFloat_FromDouble(sum);
 }
 
+/* A float64 C-contiguous buffer of ndim dimensions (writable if asked), or an error naming it. */
+static int float64_view(PyObject *object, Py_buffer *view, int ndim, int writable,
+                        const char *name) {
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(object, view, flags) < 0) return -1;
+    if (view->ndim != ndim || view->itemsize != 8 || view->format == NULL ||
+        strcmp(view->format, "d") != 0) {
+        PyErr_Format(PyExc_ValueError, "%s must be a C-contiguous float64 array of %d "
+                     "dimension(s)", name, ndim);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+/* costs(decisions, packed, out): cost() from Python, on decisions (n, d), the packed problem
+ * and out (n,), all C-contiguous float64; what a call from Python costs besides the kernel
+ * is then about a numba dispatch's, a third of a ctypes call's. */
+static PyObject *costs(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 3) {
+        PyErr_SetString(PyExc_TypeError, "costs(decisions, packed, out) takes 3 arguments");
+        return NULL;
+    }
+    Py_buffer x, data, out;
+    if (float64_view(args[0], &x, 2, 0, "decisions") < 0) return NULL;
+    if (float64_view(args[1], &data, 1, 0, "packed") < 0) {
+        PyBuffer_Release(&x);
+        return NULL;
+    }
+    if (float64_view(args[2], &out, 1, 1, "out") < 0) {
+        PyBuffer_Release(&x);
+        PyBuffer_Release(&data);
+        return NULL;
+    }
+    PyObject *result = Py_None;
+    if (out.shape[0] != x.shape[0]) {
+        PyErr_SetString(PyExc_ValueError, "out must have one entry per row of decisions");
+        result = NULL;
+    } else if (data.shape[0] < 1) {
+        PyErr_SetString(PyExc_ValueError, "packed is empty");
+        result = NULL;
+    } else {
+        cost((const double *)x.buf, x.shape[0], x.shape[1], (const double *)data.buf,
+             (double *)out.buf);
+    }
+    PyBuffer_Release(&x);
+    PyBuffer_Release(&data);
+    PyBuffer_Release(&out);
+    Py_XINCREF(result);
+    return result;
+}
+
 static PyMethodDef cost_kernel_methods[] = {
+    {"costs", (PyCFunction)(void (*)(void))costs, METH_FASTCALL,
+     "costs(decisions, packed, out): the costs of decisions (n, d) on the packed problem, "
+     "written into out (n,); all C-contiguous float64."},
     {"multiply_add_chains", multiply_add_chains, METH_VARARGS,
      "multiply_add_chains(rounds, fused): rounds of 64 independent multiply-add chains "
      "(fused or not), 2 * 64 * rounds floating-point operations; returns their sum."},

@@ -10,13 +10,12 @@ slowly (docs/explanation/design.md, "The native cost kernel", has the figures).
 The environment variable :data:`KERNEL_VARIABLE` chooses: ``auto`` (the default: C when
 built, else numba), ``c`` (C, or an error saying it was not built) or ``numba``. The choice
 holds for every evaluation, compiled solve loops and calls from Python alike
-(:func:`packed_costs`), so that a process served by the C kernel never compiles the numba
+(:func:`python_cost`), so that a process served by the C kernel never compiles the numba
 one (about 3 s of a first run's compile, with the shape-error paths its reshapes bring).
 """
 
 from __future__ import annotations
 
-import ctypes
 import enum
 import functools
 import importlib
@@ -102,35 +101,37 @@ def _cost_function(kernel: CostKernel) -> CostFunction:
     return CostFunction(numba_cost.address, numba_cost, CostKernel.NUMBA)
 
 
-_C_COST = ctypes.CFUNCTYPE(
-    None, ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p
-)
-"""The compiled-cost signature (``optimizers.compiled.COST_SIGNATURE``) as ctypes sees it."""
-
-
 @functools.cache
-def _c_cost(address: int) -> Callable[..., None]:
-    return _C_COST(address)
+def _c_costs() -> Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None:
+    """The C kernel's Python entry, ``costs(decisions, packed, out)``, or None when it was not
+    built (or was built before it had one)."""
+    try:
+        module = importlib.import_module("formation_bench.mpc._cost_kernel")
+    except ImportError:
+        return None
+    return getattr(module, "costs", None)
+
+
+def python_cost() -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """What evaluates a packed problem from Python, by the kernel compiled solve loops use
+    (:func:`cost_function`): the C kernel's Python entry when it serves, else numba's
+    ``packed_batch_cost``. Both take ``(decisions, packed)`` (``(n, d)`` float64, C-contiguous,
+    and :func:`~formation_bench.mpc.cost.pack_problem`'s array) and give the same numbers to
+    the bit. Resolved once per problem: the choice reads the environment."""
+    c_costs = _c_costs() if cost_function().kernel is CostKernel.C else None
+    if c_costs is None:
+        from formation_bench.mpc.cost import packed_batch_cost
+
+        return packed_batch_cost
+
+    def c_kernel(decisions: np.ndarray, packed: np.ndarray) -> np.ndarray:
+        out = np.empty(decisions.shape[0])
+        c_costs(decisions, packed, out)
+        return out
+
+    return c_kernel
 
 
 def packed_costs(decisions: np.ndarray, packed: np.ndarray) -> np.ndarray:
-    """The costs of ``decisions`` (``(n, d)`` float64, C-contiguous) on the problem ``packed``
-    (:func:`~formation_bench.mpc.cost.pack_problem`), by the kernel compiled solve loops use
-    (:func:`cost_function`): the C kernel, called through ctypes, when it serves; else numba's
-    ``packed_batch_cost``. Both give the same numbers to the bit."""
-    function = cost_function()
-    if function.kernel is not CostKernel.C:
-        from formation_bench.mpc.cost import packed_batch_cost
-
-        return packed_batch_cost(decisions, packed)
-    if not (decisions.flags.c_contiguous and decisions.dtype == np.float64 and decisions.ndim == 2):
-        raise ValueError("decisions must be a C-contiguous float64 array of shape (n, d)")
-    if not (packed.flags.c_contiguous and packed.dtype == np.float64):
-        raise ValueError("packed must be a C-contiguous float64 array")
-    n, d = decisions.shape
-    costs = np.empty(n)
-    if n:
-        _c_cost(function.address)(
-            decisions.ctypes.data, n, d, packed.ctypes.data, costs.ctypes.data
-        )
-    return costs
+    """:func:`python_cost` applied once: the costs of ``decisions`` on ``packed``."""
+    return python_cost()(decisions, packed)

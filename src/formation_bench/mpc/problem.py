@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numba as nb
@@ -25,7 +26,7 @@ from formation_bench.mpc.cost import (
     reference_cost,
 )
 from formation_bench.mpc.model import rollout
-from formation_bench.mpc.native_cost import cost_function, packed_costs
+from formation_bench.mpc.native_cost import cost_function, python_cost
 from formation_bench.mpc.scenario import EstimateExtension, Scenario
 from formation_bench.optimizers.base import Bounds
 from formation_bench.optimizers.compiled import CompiledObjective
@@ -223,7 +224,13 @@ class LocalProblem:
         decisions = np.ascontiguousarray(decisions, dtype=np.float64)
         if decisions.ndim != 2 or decisions.shape[1] != self.dim:
             raise ValueError(f"decisions must have shape (n, {self.dim}), got {decisions.shape}")
-        return packed_costs(decisions, self.packed)
+        return self._python_cost(decisions, self.packed)
+
+    @functools.cached_property
+    def _python_cost(self) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+        """The kernel of calls from Python (:func:`~formation_bench.mpc.native_cost.
+        python_cost`), chosen at the problem's first call."""
+        return python_cost()
 
     @functools.cached_property
     def packed(self) -> np.ndarray:
@@ -237,9 +244,11 @@ class LocalProblem:
         )  # fmt: skip
 
     def __getstate__(self) -> dict:
-        # the compiled handle holds a C function, which does not pickle; it is rebuilt on use
+        # the compiled handle holds a C function and the Python cost may be a closure, which do
+        # not pickle; both are rebuilt on use
         state = dict(self.__dict__)
         state.pop("compiled", None)
+        state.pop("_python_cost", None)
         return state
 
     @functools.cached_property

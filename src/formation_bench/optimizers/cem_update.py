@@ -108,8 +108,14 @@ def elite_refit(state, points, costs, elite_count, momentum, kept_count):  # typ
     ``momentum``, and the best ``kept_count`` of them, best first, kept."""
     m, d = points.shape
     pool = np.empty((m + state.kept.shape[0], d))
-    pool[:m] = points
-    pool[m:] = state.kept
+    # element by element: a slice assignment makes numba compile its shape-mismatch error,
+    # and with it string formatting (about 1.5 s of a first run's compile)
+    for i in range(m):
+        for j in range(d):
+            pool[i, j] = points[i, j]
+    for i in range(state.kept.shape[0]):
+        for j in range(d):
+            pool[m + i, j] = state.kept[i, j]
     pool_costs = np.concatenate((costs, state.kept_costs))
     order = np.argsort(pool_costs, kind="mergesort")
     k = min(elite_count, pool.shape[0])
@@ -126,7 +132,8 @@ def elite_refit(state, points, costs, elite_count, momentum, kept_count):  # typ
     keep = min(kept_count, k)
     kept = np.empty((keep, d))
     for r in range(keep):
-        kept[r] = pool[order[r]]
+        for j in range(d):
+            kept[r, j] = pool[order[r], j]
     mean = momentum * state.mean + (1.0 - momentum) * elite_mean
     std = momentum * state.std + (1.0 - momentum) * elite_std
     return mean, std, kept, pool_costs[order[:keep]]

@@ -160,8 +160,13 @@ def replace_centre(
     """
     n, d = population.shape
     sources = np.empty((n + 1, d))
-    sources[:n] = population
-    sources[n] = point
+    # element by element: a slice assignment makes numba compile its shape-mismatch error,
+    # and with it string formatting (about 1.5 s of a first run's compile)
+    for i in range(n):
+        for j in range(d):
+            sources[i, j] = population[i, j]
+    for j in range(d):
+        sources[n, j] = point[j]
     centres = centre_index.copy()
     used = nonempty(centre_index)
     centres[used[pick_index(u, used.shape[0])]] = n
