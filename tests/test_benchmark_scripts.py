@@ -209,3 +209,15 @@ def test_cold_warm_script_refuses_what_it_cannot_measure(args, message, capsys):
         cold_warm.main(args)
     assert stop.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_tuning_noise_is_the_spread_of_the_median_over_disjoint_seed_sets(capsys):
+    from perf import tuning_noise
+
+    # five sets of ten: medians 1, 2, 3, 4, 5
+    costs = [float(k // 10 + 1) for k in range(50)]
+    assert tuning_noise.noise(costs) == pytest.approx(np.std([1, 2, 3, 4, 5], ddof=1))
+    with pytest.raises(SystemExit) as stop:
+        tuning_noise.main(["--families", "random-search"])
+    assert stop.value.code == 2
+    assert "--families: no tuned-loop variant of random-search" in capsys.readouterr().err

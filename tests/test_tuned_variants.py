@@ -64,8 +64,10 @@ def test_a_tuned_variant_solves_a_recorded_problem_within_bounds_at_its_tuning_b
     np.testing.assert_array_equal(first.x, again.x)
     assert first.fun == again.fun
     assert np.all(first.x >= problem.bounds.lower) and np.all(first.x <= problem.bounds.upper)
-    # the default budget is the tuning budget, to within one iteration's evaluations (and the
-    # modified BSO's chaotic replacements, evaluated beside its N ideas an iteration)
-    assert budget * 0.95 <= first.nfev <= budget * 1.05
+    # the default budget is the tuning budget, to within one iteration's evaluations, and the
+    # modified BSO's chaotic replacements on top (evaluated beside its N ideas an iteration;
+    # its plan counts round(p_replace * n_replace) of them, none when that rounds to 0)
+    replacements = first.info.get("chaotic_replacements", 0)
+    assert budget * 0.95 <= first.nfev <= budget * 1.05 + replacements
     assert first.fun <= instance.warm_cost
     assert first.fun >= instance.j_star - j_star_tolerance(instance.j_star)
