@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from formation_bench.pipeline.runner import WARM_UP_PERIODS
 from perf import swarm_speed
 
 
@@ -42,8 +43,9 @@ def test_tiny_run_times_every_configuration_and_profiles(tmp_path, capsys):
     assert [p["scenario"].startswith("swarm-5") for p in profiles] == [True, True]
     for profile, graph in zip(profiles, ("complete", "ring"), strict=True):
         assert profile["steps"]["closed loop (simulate)"]["calls"] == 1
-        # a run profiled whole: its untimed warm-up instant (every UAV solves once) and its loop
-        warm_up_solves = 5
+        # a run profiled whole: its untimed warm-up instants (every UAV solves at each) and its
+        # loop
+        warm_up_solves = 5 * WARM_UP_PERIODS
         solves = runs[(5, graph)]["solves"] + warm_up_solves
         assert profile["steps"]["minimize (the optimiser)"]["calls"] == solves
         assert profile["own_time"]
