@@ -13,6 +13,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from formation_bench.experiments.errors import IntegrityError
+from formation_bench.pipeline.outputs import ARROW_THREADS
 
 SEAL_KEY = b"formation_bench.seal"
 """Footer key-value metadata entry holding a store file's seal (see
@@ -119,7 +120,10 @@ def decode(data: bytes, columns: list[str] | None = None) -> pa.Table:
             held = set(pq.read_schema(pa.BufferReader(data)).names)
             columns = [c for c in columns if c in held]
         return pq.read_table(
-            pa.BufferReader(data), columns=columns, page_checksum_verification=True
+            pa.BufferReader(data),
+            columns=columns,
+            page_checksum_verification=True,
+            use_threads=ARROW_THREADS,
         )
     except Exception as err:  # a page that fails its CRC or cannot be decoded
         raise IntegrityError(f"cannot be decoded ({_reason(err)})") from None

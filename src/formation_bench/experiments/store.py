@@ -99,7 +99,7 @@ from formation_bench.experiments.seal import (
     read_table,
     sealed_parquet,
 )
-from formation_bench.pipeline.outputs import atomic_write_bytes
+from formation_bench.pipeline.outputs import ARROW_THREADS, atomic_write_bytes
 from formation_bench.pipeline.record import (
     SAME_MEANING_FORMATS,
     duration_columns,
@@ -443,7 +443,7 @@ def load_results(
 
     def read(key: str) -> tuple[pd.DataFrame, bool]:
         table, seal = read_checked(store.run_path(key), "run", key)
-        return table.to_pandas(), seal is not None
+        return table.to_pandas(use_threads=ARROW_THREADS), seal is not None
 
     frames = intact_frames(
         [(store.run_path(key), key) for key in store.keys()], read,
@@ -510,7 +510,7 @@ def _verified_trace(store: ResultStore, key: str) -> tuple[pd.DataFrame, bool]:
     data, seal = read_sealed(path, "trace", key)
     if run_seal is not None and (seal is None or run_seal.get("trace") != seal.get("sha256")):
         raise IntegrityError("not the trace stored with its run")
-    return decode(data).to_pandas(), seal is not None
+    return decode(data).to_pandas(use_threads=ARROW_THREADS), seal is not None
 
 
 def load_scores(
@@ -530,7 +530,7 @@ def load_scores(
 
     def read(key: str) -> tuple[pd.DataFrame, bool]:
         table, seal = read_checked(store.score_path(key), "score", key)
-        return table.to_pandas(), seal is not None
+        return table.to_pandas(use_threads=ARROW_THREADS), seal is not None
 
     frames = intact_frames(
         [(store.score_path(key), key) for key in store.score_keys()], read,

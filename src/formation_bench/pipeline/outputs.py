@@ -27,6 +27,12 @@ from formation_bench.pipeline.trace_columns import (
     check_schema,
 )
 
+ARROW_THREADS = False
+"""Whether Arrow reads and converts tables on its thread pool. Off: the files are small, and a
+command interrupted (Ctrl-C) while a pool thread still worked on an abandoned read could abort
+at exit ("terminate called without an active exception", exit -6; apache/arrow#34314), as
+one sweep did in the Ctrl-C stress test (tests/test_interrupt_stress.py)."""
+
 if TYPE_CHECKING:
     import pandas as pd
     import pyarrow as pa
@@ -146,6 +152,6 @@ def read_trace(path: Path) -> pd.DataFrame:
     and its columns against the declared ones (:func:`~.trace_columns.check_schema`)."""
     import pyarrow.parquet as pq
 
-    table = pq.read_table(path, page_checksum_verification=True)
+    table = pq.read_table(path, page_checksum_verification=True, use_threads=ARROW_THREADS)
     check_schema(table.schema)
-    return table.to_pandas()
+    return table.to_pandas(use_threads=ARROW_THREADS)

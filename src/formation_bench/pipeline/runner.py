@@ -54,7 +54,7 @@ class RunOutcome:
     def frame(self) -> pd.DataFrame:
         """The trace table as a pandas DataFrame (converted on first use: the figures and a
         sweep's store need it, a run without either does not import pandas)."""
-        return self.table.to_pandas()
+        return self.table.to_pandas(use_threads=outputs.ARROW_THREADS)
 
 
 def kernels_cached() -> bool:
