@@ -47,7 +47,7 @@ def imported_modules(path: Path, package: str) -> set[str]:
 
 LAYERS = ("optimizers", "mpc", "pipeline", "instances", "experiments", "tuning", "analysis", "cli")
 """The subpackages, each importing only from itself and those before it."""
-SHARED = ("fields", "plugins", "environment", "_version")
+SHARED = ("fields", "plugins", "environment", "kernel_cache", "_version")
 """Modules beside the subpackages that every layer may import (as the package root)."""
 
 

@@ -176,7 +176,8 @@ def test_cold_warm_script_states_each_target_met_or_missed():
 
     commands = [
         ColdWarm("reproduce", cold_s=9.0, warm_s=4.0, compile_cpu_s=5.0, compiles=80),
-        ColdWarm("sweep", cold_s=130.0, warm_s=100.0, compile_cpu_s=0.0, compiles=0),
+        ColdWarm("sweep comparison", cold_s=130.0, warm_s=100.0, compile_cpu_s=0.0, compiles=0),
+        ColdWarm("sweep", cold_s=20.0, warm_s=3.0, compile_cpu_s=0.0, compiles=0),
         ColdWarm("score", cold_s=20.0, warm_s=5.0, compile_cpu_s=14.0, compiles=90),
     ]
     optimizers = [
@@ -185,7 +186,11 @@ def test_cold_warm_script_states_each_target_met_or_missed():
     ]
     text = format_results(commands, optimizers)
     assert "| `reproduce` | 9.0 s | 4.0 s | 5.0 s | 2.2x | 5.0 s (80) | missed (<= 2x) |" in text
-    assert "| `sweep` | 130.0 s | 100.0 s | 30.0 s | 1.3x | 0.0 s (0) | met (<= 1.3x) |" in text
+    assert (
+        "| `sweep comparison` | 130.0 s | 100.0 s | 30.0 s | 1.3x | 0.0 s (0) | met (<= 1.3x) |"
+        in text
+    )
+    assert "| `sweep` | 20.0 s | 3.0 s | 17.0 s | 6.7x | 0.0 s (0) |  |" in text  # no target
     assert (
         text.count("| `score` |") == 1
         and "| `score` | 20.0 s | 5.0 s | 15.0 s | 4.0x | 14.0 s (90) |  |" in text
@@ -193,6 +198,20 @@ def test_cold_warm_script_states_each_target_met_or_missed():
     assert "| pso | 5.5 s | 3.0 s | 2.5 s | 1.8x | 2.0 s (10) | met (<= 3 s) |" in text
     assert "| cma-es | 40.0 s | 3.0 s | 37.0 s | 13.3x | 35.0 s (60) | missed (<= 3 s) |" in text
     assert "within 3 s of the warm run: 1 of 2; compile CPU summed: 37 s" in text
+
+
+def test_cold_warm_script_measures_one_optimizer_per_group_compiling_the_same_kernels():
+    from formation_bench.optimizers import get_optimizer, optimizer_names
+    from perf.cold_warm import default_optimizers
+
+    names = default_optimizers()
+    compiled = [get_optimizer(n).compiled_kernels() for n in names]
+    compiled = [kernels for kernels in compiled if kernels]
+    assert len(compiled) == len(set(compiled))  # no group twice
+    every = {get_optimizer(n).compiled_kernels() for n in optimizer_names()} - {()}
+    assert set(compiled) == every  # every group
+    assert {"pso", "modified-bso", "cma-es", "ipopt", "pycma"} <= set(names)
+    assert not any(name.startswith("ng-") for name in names)
 
 
 @pytest.mark.parametrize(

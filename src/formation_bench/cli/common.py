@@ -199,21 +199,17 @@ def seed(text: str) -> int:
     return value
 
 
-def compile_notice(optimizers: Mapping[str, Optimizer], *, harness: bool = True) -> None:
-    """Say once on stderr, before work that will compile, what numba compiles and roughly for
-    how long: the harness's kernels (``harness``) or an optimiser's (labels to optimisers) not
-    in numba's cache, as on the first run or the first after their source changed. Printed in
-    every output mode; no timing holds the compilation (a warm-up solve runs it first)."""
-    from formation_bench.pipeline.runner import kernels_cached, optimizer_kernels_cached
+def compile_notice(
+    optimizers: Mapping[str, Optimizer], *, harness: bool = True, workers: int = 1
+) -> None:
+    """Say once on stderr, before work that will compile, what numba compiles and about how
+    long it takes (:func:`~formation_bench.pipeline.compiles.pending_compiles`): the harness's
+    kernels (``harness``) and those of the optimisers (labels to optimisers) not in numba's
+    cache, as on the first run or the first after their source changed, on ``workers``
+    processes. Printed in every output mode; no timing holds the compilation (a warm-up runs
+    it first)."""
+    from formation_bench.pipeline.compiles import pending_compiles
 
-    cold = [
-        label for label, optimizer in optimizers.items() if not optimizer_kernels_cached(optimizer)
-    ]
-    parts = (["the harness"] if harness and not kernels_cached() else []) + cold
-    if parts:
-        print(
-            f"compiling numba kernels of {', '.join(parts)} (once: numba caches them; about "
-            "15 s to 2 min each, before any timed solve)...",
-            file=sys.stderr,
-            flush=True,
-        )
+    notice = pending_compiles(optimizers, harness=harness).notice(workers)
+    if notice is not None:
+        print(notice, file=sys.stderr, flush=True)

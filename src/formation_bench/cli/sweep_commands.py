@@ -139,7 +139,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         {
             entry.label: get_optimizer(entry.name, **from_json_value(json.loads(entry.overrides)))
             for entry in suite.optimizers
-        }
+        },
+        workers=1 if args.scheduler else args.jobs,
     )
     summary = run_sweep(
         suite,

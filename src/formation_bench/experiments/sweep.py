@@ -16,6 +16,8 @@ results do not depend on queue order, worker count or which worker ran what.
 
 from __future__ import annotations
 
+import functools
+import json
 import signal
 import sys
 import time
@@ -36,6 +38,7 @@ from formation_bench.experiments.executors import (
 )
 from formation_bench.experiments.guard import FolderGuard
 from formation_bench.experiments.suite import Suite
+from formation_bench.pipeline.compiles import compile_first
 from formation_bench.pipeline.interrupts import (
     interrupts_deferred,
     is_interrupt,
@@ -49,6 +52,7 @@ if TYPE_CHECKING:
     from dask.distributed import Client
 
     from formation_bench.experiments.store import ResultStore
+    from formation_bench.optimizers import Optimizer
 
 DEFAULT_JOBS = 2
 
@@ -308,6 +312,8 @@ def _execute(
     if not pending:
         return
     by_key = {spec.key: spec for spec in pending}
+    # the workers start by compiling different kernels (the results do not depend on order)
+    pending = compile_first(pending, _optimizer_of)
     results = (
         run_on_dask(pending, client, worker_timeout_s, notice=say)
         if client is not None
@@ -341,6 +347,25 @@ def _execute(
         # be after the command has printed its last line), and let no Ctrl-C cut it short
         with interrupts_deferred():
             results.close()
+
+
+@functools.lru_cache(maxsize=256)
+def _configured_optimizer(name: str, overrides: str) -> Optimizer:
+    from formation_bench.optimizers import get_optimizer
+    from formation_bench.pipeline.spec import from_json_value
+
+    return get_optimizer(name, **from_json_value(json.loads(overrides)))
+
+
+def _optimizer_of(spec: RunSpec) -> Optimizer | None:
+    """The run's optimiser; None if it cannot be built here (the run itself says why)."""
+    from formation_bench.plugins import load_plugins
+
+    try:
+        load_plugins(spec.plugins)
+        return _configured_optimizer(spec.optimizer_name, spec.optimizer_overrides)
+    except Exception:
+        return None
 
 
 def _write_run(store: ResultStore, result: RunResult) -> None:

@@ -32,11 +32,12 @@ import math
 import numba as nb
 import numpy as np
 
+from formation_bench.kernel_cache import njit
 from formation_bench.mpc.fused import fma, fused_cos_sin, fused_substep, fused_turn
 from formation_bench.mpc.model import HEADING_RESET_SUBSTEPS, REDUCTION_LIMIT, rk4_substep
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _add_intrusion(
     penalty: np.ndarray, x: np.ndarray, y: np.ndarray, cx: float, cy: float, radius: float
 ) -> None:
@@ -50,7 +51,7 @@ def _add_intrusion(
 
 # inline: the closed loop calls it only through packed_batch_cost, which then holds the one
 # compiled copy a run builds
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def batch_cost(
     decisions: np.ndarray,
     state: np.ndarray,
@@ -169,7 +170,7 @@ NO_PENALTIES = (np.zeros((0, 0, 2)), 0.0, 1.0, np.zeros((0, 3)), 0.0)
 penalty."""
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def batch_cost_reference(
     decisions: np.ndarray,
     state: np.ndarray,
@@ -334,14 +335,14 @@ def pack_problem(
     )
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def packed_size(header: np.ndarray) -> int:
     """Length of a packed problem from its header."""
     n_neighbours, horizon, n_obstacles = int(header[0]), int(header[1]), int(header[8])
     return PACKED_HEADER + 4 + horizon + 4 * n_neighbours * horizon + 2 * horizon + 3 * n_obstacles
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def packed_batch_cost(decisions: np.ndarray, data: np.ndarray) -> np.ndarray:
     """:func:`batch_cost` of the problem packed by :func:`pack_problem` (same arithmetic)."""
     n_neighbours, horizon, substeps = int(data[0]), int(data[1]), int(data[2])

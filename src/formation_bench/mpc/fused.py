@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
 from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
+from formation_bench.kernel_cache import njit
 from formation_bench.mpc.model import (
     _C1,
     _C2,
@@ -61,7 +61,7 @@ def fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]
     return types.float64(types.float64, types.float64, types.float64), codegen
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def fused_cos_sin(angle: float) -> tuple[float, float]:
     """:func:`~formation_bench.mpc.model.reduced_cos_sin` with its products and sums fused.
 
@@ -78,7 +78,7 @@ def fused_cos_sin(angle: float) -> tuple[float, float]:
     return in_quadrant(quadrant, cos_r, sin_r)
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def fused_turn(half_turn: float) -> tuple[float, float, float, float]:
     """``(cos, sin)`` of ``half_turn`` and of twice it (double-angle formulas), fused.
 
@@ -91,7 +91,7 @@ def fused_turn(half_turn: float) -> tuple[float, float, float, float]:
     return cos_half, sin_half, fma(-2.0 * sin_half, sin_half, 1.0), 2.0 * sin_half * cos_half
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def fused_substep(
     cos_t: float,
     sin_t: float,

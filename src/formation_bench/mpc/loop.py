@@ -20,9 +20,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import numba as nb
 import numpy as np
 
+from formation_bench.kernel_cache import njit
 from formation_bench.mpc.disturbance import Disturbances
 from formation_bench.mpc.network import Network, fixed_listening, heard_lists, listening
 from formation_bench.mpc.problem import (
@@ -107,7 +107,7 @@ AT_BOUND_TOLERANCE = 1e-6
 interior-point solver stops a little inside an active bound)."""
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def at_bound(decision: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> bool:
     """Whether any component of ``decision`` lies at its lower or upper bound (compiled:
     asked after every solve)."""

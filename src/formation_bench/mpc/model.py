@@ -27,14 +27,15 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
+
+from formation_bench.kernel_cache import njit
 
 STATE_DIM = 4
 CONTROL_DIM = 2
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def rk4_substep(
     x: float, y: float, theta: float, v: float, a: float, omega: float, h: float
 ) -> tuple[float, float, float, float]:
@@ -74,7 +75,7 @@ _C1, _C2, _C3 = 4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015
 _C4, _C5, _C6 = -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.13596475577881948265e-11
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def reduced_cos_sin(angle: float) -> tuple[float, float]:
     """``(cos, sin)`` of ``angle`` for ``|angle| < REDUCTION_LIMIT``, without a branch or a call.
 
@@ -93,7 +94,7 @@ def reduced_cos_sin(angle: float) -> tuple[float, float]:
     return in_quadrant(quadrant, cos_r, sin_r)
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def in_quadrant(quadrant: int, cos_r: float, sin_r: float) -> tuple[float, float]:
     """``(cos, sin)`` of ``r + quadrant * pi / 2`` from those of ``r``, by selects alone."""
     n = np.int64(quadrant) & 3
@@ -104,7 +105,7 @@ def in_quadrant(quadrant: int, cos_r: float, sin_r: float) -> tuple[float, float
     return cos_a, sin_a
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def cos_sin(angle: float) -> tuple[float, float]:
     """``(cos, sin)`` of ``angle``: :func:`reduced_cos_sin`, or ``math`` past its range.
 
@@ -116,7 +117,7 @@ def cos_sin(angle: float) -> tuple[float, float]:
     return math.cos(angle), math.sin(angle)
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def turn_rotation(omega: float, h: float) -> tuple[float, float, float, float]:
     """Cosine and sine of the turn over half a sub-step and over a whole one.
 
@@ -129,7 +130,7 @@ def turn_rotation(omega: float, h: float) -> tuple[float, float, float, float]:
     return cos_half, sin_half, 1.0 - 2.0 * sin_half * sin_half, 2.0 * sin_half * cos_half
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def rotated_substep(
     x: float,
     y: float,
@@ -159,7 +160,7 @@ def rotated_substep(
     return x + h * dx / 6.0, y + h * dy / 6.0, cos_end, sin_end, v_end
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def advance_period(
     x: float,
     y: float,
@@ -191,7 +192,7 @@ def advance_period(
     return x, y, theta, v
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def rollout(state: np.ndarray, controls: np.ndarray, period: float, substeps: int) -> np.ndarray:
     """States at every period boundary under held controls.
 
@@ -213,7 +214,7 @@ def rollout(state: np.ndarray, controls: np.ndarray, period: float, substeps: in
     return out
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def rollout_batch(
     state: np.ndarray, controls: np.ndarray, period: float, substeps: int
 ) -> np.ndarray:
@@ -226,7 +227,7 @@ def rollout_batch(
     return out
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def step_plant(
     states: np.ndarray, controls: np.ndarray, period: float, substeps: int
 ) -> np.ndarray:

@@ -16,9 +16,9 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 
+from formation_bench.kernel_cache import njit
 from formation_bench.mpc.cost import (
     Penalties,
     block_map,
@@ -77,7 +77,7 @@ def estimate_positions(
     )
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def track_positions(
     states: np.ndarray, first: int, n_points: int, period: float, coasting: bool
 ) -> np.ndarray:
@@ -141,7 +141,7 @@ def centre_group_size(n_uav: int, n_neighbours: int, group_centre: bool) -> int:
     return n_neighbours + 1 if group_centre else n_uav
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def block_means(controls: np.ndarray, block_of_step: np.ndarray, n_blocks: int) -> np.ndarray:
     """``(2 * n_blocks,)``: the mean of the per-period ``controls`` ``(H, 2)`` over each block,
     as a decision vector. Summed period by period in order, as ``np.add.at`` sums."""

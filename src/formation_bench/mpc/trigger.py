@@ -12,14 +12,15 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numba as nb
 import numpy as np
+
+from formation_bench.kernel_cache import njit
 
 TRIGGER_CONDITIONS = ("distance", "tracking", "control", "expiry")
 """Names of the conditions, in the order of eqs. (15)-(18)."""
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def distance_condition(
     own_positions: np.ndarray,
     neighbour_positions: np.ndarray,
@@ -42,7 +43,7 @@ def distance_condition(
     return False
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def tracking_condition(
     own_positions: np.ndarray,
     neighbour_positions: np.ndarray,
@@ -74,7 +75,7 @@ def tracking_condition(
     return False
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def control_condition(
     control: np.ndarray, lower: np.ndarray, upper: np.ndarray, eta: float
 ) -> bool:

@@ -43,9 +43,10 @@ from time import perf_counter
 from typing import Any, NamedTuple
 
 import numpy as np
-from numba import njit, types
+from numba import types
 from numba.extending import overload
 
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.base import (
     Bounds,
     Budget,
@@ -304,6 +305,14 @@ class AskTellOptimizer(PopulationOptimizer[Any]):
         iteration: int,
     ) -> Any:
         raise TypeError(f"{type(self).__name__} runs its iterations in blocks, not by step()")
+
+    def compiled_kernels(self) -> tuple[Any, ...]:
+        """The optimiser's cached wrapper of :func:`iterate` (its ask and tell compile with
+        it)."""
+        kernels = self.kernels
+        if kernels.iterate is not None:
+            return (kernels.iterate,)
+        return tuple(k for k in (kernels.ask, kernels.tell) if hasattr(k, "py_func"))
 
     def has_compiled_loop(self) -> bool:
         """Whether a compiled objective's iterations run in compiled code (False when a

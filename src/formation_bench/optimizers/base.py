@@ -20,10 +20,9 @@ import abc
 import math
 from dataclasses import dataclass, field
 from time import perf_counter
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 import numpy as np
-from numba import njit
 
 # The config-field checks live in the neutral formation_bench.fields; re-exported here so that
 # existing imports keep working.
@@ -34,6 +33,7 @@ from formation_bench.fields import (  # noqa: F401
     coerce_enum,
     setting,
 )
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.compiled import UNLIMITED
 
 
@@ -336,6 +336,18 @@ StateT = TypeVar("StateT")
 
 class Optimizer(abc.ABC):
     """What the DMPC harness (and every benchmark) needs from an optimiser."""
+
+    compile_cpu_s: ClassVar[float | None] = None
+    """CPU seconds numba takes to compile :meth:`compiled_kernels` (and what they call) on an
+    empty cache, as ``python -m perf.cold_warm`` measured them on the development machine,
+    without the harness's share; None: not measured (a plugin's). For the notice of a command
+    that compiles and the order in which a sweep starts its first runs."""
+
+    def compiled_kernels(self) -> tuple[Any, ...]:
+        """The outermost numba kernels (cached ``njit`` functions) of a solve: once they are in
+        numba's cache, a solve compiles nothing. Empty for an optimiser without any; the
+        optimisers that share them compile the same code."""
+        return ()
 
     @property
     @abc.abstractmethod

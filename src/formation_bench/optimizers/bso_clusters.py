@@ -9,8 +9,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.clustering import lloyd_kmeans_kernel
 
 

@@ -21,7 +21,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+
+from formation_bench.kernel_cache import njit
 
 # BoundHandling is re-exported: bound handling is one of the BSO operators
 from formation_bench.optimizers.bound_handling import (  # noqa: F401

@@ -42,7 +42,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from formation_bench.fields import (
     Search,
@@ -51,6 +50,7 @@ from formation_bench.fields import (
     pack_settings,
     setting,
 )
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -183,6 +183,7 @@ def cem_iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def
 class CEM(CEMConfig, NominalStart, AskTellOptimizer):
     """CEM and iCEM; see the module docstring for the method, its sources and choices."""
 
+    compile_cpu_s = 9.0
     kernels = Kernels(cem_ask, cem_tell, cem_iterate)
 
     @property

@@ -8,8 +8,8 @@ import math
 from typing import Any, NamedTuple
 
 import numpy as np
-from numba import njit
 
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.ask_tell import BlockSource
 from formation_bench.optimizers.population import ROWS_AHEAD, standard_normals
 

@@ -31,8 +31,8 @@ import math
 from enum import IntEnum
 
 import numpy as np
-from numba import njit
 
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.chaos_formulas import (
     chebyshev_map,
     circle_map,

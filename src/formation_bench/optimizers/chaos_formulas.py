@@ -12,7 +12,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from formation_bench.kernel_cache import njit
 
 # Parameters of the maps below: the values of the chaotic-map tables of the
 # chaos-enhanced metaheuristics literature (e.g. Gandomi et al. 2013, Mirjalili &

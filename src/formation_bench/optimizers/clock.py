@@ -23,10 +23,11 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from llvmlite import ir
-from numba import njit, types
+from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.compiled import UNLIMITED
 
 

@@ -42,7 +42,6 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
-from numba import njit
 
 from formation_bench.fields import (
     Search,
@@ -51,6 +50,7 @@ from formation_bench.fields import (
     pack_settings,
     setting,
 )
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -264,6 +264,7 @@ class ChaoticLocalSearchBSO(WarmStartInit, LocalSearchConfig, ShiConfig, AskTell
         doc="N, ideas per iteration; 25 + n_local = 30 evaluations per iteration",
     )  # fmt: skip
 
+    compile_cpu_s = 19.0
     kernels = Kernels(cls_ask, cls_tell, cls_iterate)
 
     def evaluations_per_step(self) -> int:

@@ -22,7 +22,8 @@ from __future__ import annotations
 from enum import Enum
 
 import numpy as np
-from numba import njit
+
+from formation_bench.kernel_cache import njit
 
 DEFAULT_MAX_ITER = 100
 """Default cap on mean updates; populations of ~30 points converge in far fewer."""

@@ -56,7 +56,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numba import njit
 
 from formation_bench.fields import (
     Search,
@@ -65,6 +64,7 @@ from formation_bench.fields import (
     pack_settings,
     setting,
 )
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -210,6 +210,7 @@ def cma_iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-def
 class CMAES(CMAConfig, AskTellOptimizer):
     """CMA-ES with restarts; see the module docstring for the algorithm and its sources."""
 
+    compile_cpu_s = 18.0
     kernels = Kernels(cma_ask, cma_tell, cma_iterate)
 
     @property

@@ -52,8 +52,8 @@ from enum import IntEnum
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.cma_eigen import eigen_into
 from formation_bench.optimizers.cma_transform import linquad_inverse, linquad_transform_inplace

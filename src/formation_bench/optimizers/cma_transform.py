@@ -41,7 +41,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from formation_bench.kernel_cache import njit
 
 
 @njit(cache=True)

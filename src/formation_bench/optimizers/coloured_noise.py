@@ -35,7 +35,8 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from numba import njit
+
+from formation_bench.kernel_cache import njit
 
 
 def power_law_scales(exponent: float, stages: int) -> np.ndarray:

@@ -33,8 +33,10 @@ from typing import Any
 
 import numpy as np
 from llvmlite import ir
-from numba import njit, types
+from numba import types
 from numba.extending import intrinsic
+
+from formation_bench.kernel_cache import njit
 
 COST_SIGNATURE = types.void(
     types.CPointer(types.float64),

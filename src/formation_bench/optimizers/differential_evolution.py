@@ -30,7 +30,6 @@ from enum import IntEnum
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from formation_bench.fields import (
     Search,
@@ -39,6 +38,7 @@ from formation_bench.fields import (
     pack_settings,
     setting,
 )
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -218,27 +218,24 @@ def de_ask(state, params, uniforms, normals, iteration, remaining):  # type: ign
     coordinates can leave the box."""
     s = DESettings(*params)
     n, d = state.x.shape
-    # one return: each exit would count references to the state's arrays again
-    if s.updating == DEUpdating.DEFERRED:
-        trials = np.empty((n, d))
-        best = np.argmin(state.f)
-        for i in range(n):
-            mutant_into(trials[i], state.x, i, best, s, uniforms)
-        redraws = redraws_of(s, uniforms, n, d, 0, n)
-        apply_bounds_inplace(trials, s.lower, s.upper, s.bound_handling, redraws)
-        last = True
+    # one return: each exit would count references to the state's arrays again; and one call
+    # of each inlined helper, which numba types again at every call site
+    deferred = s.updating == DEUpdating.DEFERRED
+    if deferred:
+        x, f, member, best, rows = state.x, state.f, 0, np.argmin(state.f), n
+    elif iteration != state.generation:
+        # the generation's own copies, into which its rounds' selections are written
+        x, f = state.x.copy(), state.f.copy()
+        member, best, rows = 0, np.argmin(f), 1
     else:
-        if iteration != state.generation:
-            # the generation's own copies, into which its rounds' selections are written
-            x, f = state.x.copy(), state.f.copy()
-            member, best = 0, np.argmin(f)
-        else:
-            x, f, member, best = state.x, state.f, state.member + 1, state.best
-        trials = np.empty((1, d))
-        mutant_into(trials[0], x, member, best, s, uniforms)
-        redraws = redraws_of(s, uniforms, n, d, member, 1)
-        apply_bounds_inplace(trials, s.lower, s.upper, s.bound_handling, redraws)
-        last = member == n - 1 or remaining <= 1
+        x, f, member, best, rows = state.x, state.f, state.member + 1, state.best, 1
+    trials = np.empty((rows, d))
+    for k in range(rows):
+        mutant_into(trials[k], x, member + k, best, s, uniforms)
+    redraws = redraws_of(s, uniforms, n, d, member, rows)
+    apply_bounds_inplace(trials, s.lower, s.upper, s.bound_handling, redraws)
+    last = deferred or member == n - 1 or remaining <= 1
+    if not deferred:
         state = DEState(x, f, iteration, member, best)
     return state, trials, last
 
@@ -281,6 +278,7 @@ class DifferentialEvolution(WarmStartInit, DEConfig, AskTellOptimizer):
     """Storn & Price's DE; the settings are those of :class:`DEConfig` and the initial
     population's of :class:`~formation_bench.optimizers.population.WarmStartInit`."""
 
+    compile_cpu_s = 9.0
     kernels = Kernels(de_ask, de_tell, de_iterate)
 
     def params(self, bounds: Bounds, t_max: int) -> tuple:

@@ -82,6 +82,8 @@ class ModifiedBSO(WarmStartInit, ModifiedBSOConfig, AskTellOptimizer):
     :class:`~formation_bench.optimizers.modified_bso_kernels.ModifiedBSOConfig` and, for the
     initial population, :class:`~formation_bench.optimizers.population.WarmStartInit`."""
 
+    compile_cpu_s = 17.0
+
     @property
     def kernels(self) -> Kernels:  # type: ignore[override]
         if self.clustering is ClusteringBackend.SKLEARN:

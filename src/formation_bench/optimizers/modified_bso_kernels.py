@@ -14,9 +14,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from formation_bench.fields import Search, Validated, kernel_settings_class, setting
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.ask_tell import iterate, register_kernels
 from formation_bench.optimizers.base import budget_setting
 from formation_bench.optimizers.bound_handling import BoundHandling

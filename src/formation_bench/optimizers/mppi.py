@@ -52,7 +52,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from formation_bench.fields import (
     Search,
@@ -61,6 +60,7 @@ from formation_bench.fields import (
     pack_settings,
     setting,
 )
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -219,6 +219,7 @@ def mppi_iterate(state, params, block, nit, rows):  # type: ignore[no-untyped-de
 class MPPI(MPPIConfig, NominalStart, AskTellOptimizer):
     """MPPI over a plan; see the module docstring for the source and the choices made."""
 
+    compile_cpu_s = 11.0
     kernels = Kernels(mppi_ask, mppi_tell, mppi_iterate)
 
     def params(self, bounds: Bounds, t_max: int) -> tuple:

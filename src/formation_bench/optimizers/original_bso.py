@@ -86,6 +86,7 @@ class OriginalBSO(WarmStartInit, ShiConfig, AskTellOptimizer):
     and, for the initial ideas, :class:`~formation_bench.optimizers.population.WarmStartInit`.
     """
 
+    compile_cpu_s = 10.0
     kernels = Kernels(shi_ask, shi_tell, shi_iterate)
 
     def params(self, bounds: Bounds, t_max: int) -> tuple:

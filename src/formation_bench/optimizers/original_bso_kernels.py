@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from formation_bench.fields import (
     Search,
@@ -20,6 +19,7 @@ from formation_bench.fields import (
     pack_settings,
     setting,
 )
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.ask_tell import iterate, register_kernels
 from formation_bench.optimizers.base import Bounds, budget_setting
 from formation_bench.optimizers.bound_handling import BoundHandling

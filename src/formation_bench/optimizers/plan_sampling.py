@@ -20,9 +20,9 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
-from numba import njit
 
 from formation_bench.fields import setting
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.base import Bounds
 
 

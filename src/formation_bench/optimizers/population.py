@@ -15,9 +15,9 @@ from time import perf_counter
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from formation_bench.fields import Search, setting
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.base import Bounds, EvaluationCounter, OptimizeResult
 from formation_bench.optimizers.bound_handling import BoundHandling, apply_bounds_inplace
 from formation_bench.optimizers.compiled import (

@@ -38,7 +38,6 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
-from numba import njit
 
 from formation_bench.fields import (
     Search,
@@ -47,6 +46,7 @@ from formation_bench.fields import (
     pack_settings,
     setting,
 )
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -138,6 +138,7 @@ class PredictiveSampling(PredictiveSamplingConfig, NominalStart, AskTellOptimize
     """Predictive sampling over a plan; see the module docstring for the source and the
     choices made."""
 
+    compile_cpu_s = 3.0
     kernels = Kernels(predictive_sampling_ask, predictive_sampling_tell,
                       predictive_sampling_iterate)  # fmt: skip
 

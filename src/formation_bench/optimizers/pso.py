@@ -43,7 +43,6 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
-from numba import njit
 
 from formation_bench.fields import (
     Search,
@@ -52,6 +51,7 @@ from formation_bench.fields import (
     pack_settings,
     setting,
 )
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -289,6 +289,7 @@ class PSO(WarmStartInit, PSOConfig, AskTellOptimizer):
     :class:`PSOConfig` for the settings and
     :class:`~formation_bench.optimizers.population.WarmStartInit` for the initial swarm."""
 
+    compile_cpu_s = 10.0
     kernels = Kernels(pso_ask, pso_tell, pso_iterate)
 
     def params(self, bounds: Bounds, t_max: int) -> tuple:

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from formation_bench.fields import Validated, kernel_settings_class, pack_settings, setting
+from formation_bench.kernel_cache import njit
 from formation_bench.optimizers.ask_tell import (
     AskTellOptimizer,
     DrawPlan,
@@ -96,6 +96,7 @@ def random_search_iterate(state, params, block, nit, rows):  # type: ignore[no-u
 class RandomSearch(RandomSearchConfig, AskTellOptimizer):
     """Uniform samples in the box, batch-evaluated; see the module docstring."""
 
+    compile_cpu_s = 3.0
     kernels = Kernels(random_search_ask, random_search_tell, random_search_iterate)
 
     def params(self, bounds: Bounds, t_max: int) -> tuple:

@@ -63,7 +63,7 @@ def plain(value: Any) -> Any:
     return value
 
 
-@overload(plain, inline="always")
+@overload(plain)
 def _plain(value):  # type: ignore[no-untyped-def]
     if not isinstance(value, types.BaseNamedTuple):
         return lambda value: value

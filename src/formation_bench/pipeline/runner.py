@@ -78,11 +78,9 @@ def kernels_cached() -> bool:
 
 
 def optimizer_kernels_cached(optimizer: Optimizer) -> bool:
-    """Whether numba's cache holds the compiled solve loop of ``optimizer`` (the ``iterate``
-    of an ask/tell optimiser's :attr:`~formation_bench.optimizers.ask_tell.AskTellOptimizer.
-    kernels`, which compiles its ask and tell with it); True for an optimiser without one."""
-    iterate = getattr(getattr(optimizer, "kernels", None), "iterate", None)
-    return iterate is None or kernel_cached(iterate)
+    """Whether numba's cache holds ``optimizer``'s :meth:`~formation_bench.optimizers.
+    Optimizer.compiled_kernels` (True for an optimiser without any)."""
+    return all(kernel_cached(kernel) for kernel in optimizer.compiled_kernels())
 
 
 def kernel_cached(kernel: object) -> bool:

@@ -122,6 +122,8 @@ that ends a solve."""
 class IlqrOptimizer(SolverCacheMixin, Optimizer):
     """Iterative LQR with a box QP per stage (Li and Todorov 2004; Tassa et al. 2014)."""
 
+    compile_cpu_s = 16.0
+
     max_iter: int = budget_setting(
         100, doc="Iterations when the caller gives no budget; the default budget"
     )
@@ -189,6 +191,10 @@ class IlqrOptimizer(SolverCacheMixin, Optimizer):
             derivatives = build_derivatives(shape, self.cost_hessian, self.jit)
             self._solver_cache[key] = derivatives
         return derivatives
+
+    def compiled_kernels(self) -> tuple[Any, ...]:
+        """The first forward pass and the iteration (its passes and box QP compile with it)."""
+        return (forward_pass, iterate)
 
     def minimize(
         self,

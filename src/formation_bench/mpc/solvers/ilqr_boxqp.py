@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
+
+from formation_bench.kernel_cache import njit
 
 MAX_ITERATIONS = 100
 """``boxQP.m``'s maxIter."""
@@ -42,7 +43,7 @@ NO_DESCENT, ITERATION_LIMIT, STEP_FAILED = 0, 1, 2
 SMALL_IMPROVEMENT, SMALL_GRADIENT, ALL_CLAMPED = 4, 5, 6
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def cholesky_of(matrix: np.ndarray, index: np.ndarray, size: int, factor: np.ndarray) -> bool:
     """Lower Cholesky factor of ``matrix[index[:size]][:, index[:size]]`` into
     ``factor[:size, :size]``; False if that block is not positive definite."""
@@ -60,7 +61,7 @@ def cholesky_of(matrix: np.ndarray, index: np.ndarray, size: int, factor: np.nda
     return True
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def cholesky_solve(factor: np.ndarray, size: int, rhs: np.ndarray) -> None:
     """``rhs[:size] <- (L L')^-1 rhs[:size]`` in place, ``L = factor[:size, :size]``."""
     for i in range(size):
@@ -75,7 +76,7 @@ def cholesky_solve(factor: np.ndarray, size: int, rhs: np.ndarray) -> None:
         rhs[i] = total / factor[i, i]
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _value(hessian: np.ndarray, gradient: np.ndarray, x: np.ndarray) -> float:
     n = x.shape[0]
     total = 0.0
@@ -87,7 +88,7 @@ def _value(hessian: np.ndarray, gradient: np.ndarray, x: np.ndarray) -> float:
     return total
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def box_qp(
     hessian: np.ndarray,
     gradient: np.ndarray,

@@ -24,9 +24,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba as nb
 import numpy as np
 
+from formation_bench.kernel_cache import njit
 from formation_bench.mpc.cost import PACKED_HEADER, packed_batch_cost
 from formation_bench.mpc.model import advance_period, turn_rotation
 from formation_bench.mpc.solvers.ilqr_boxqp import box_qp, cholesky_solve
@@ -70,7 +70,7 @@ F_X, F_U, L_X, L_U, L_XX, L_UU, L_UX = 0, 16, 24, 28, 30, 46, 50
 ilqr_derivatives.STAGE_LAYOUT`, row-major); a test checks them against the layout."""
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _q_terms(row: np.ndarray, v_x: np.ndarray, v_xx: np.ndarray, q: tuple, work: tuple) -> None:
     """``Q_x, Q_u, Q_xx, Q_uu, Q_ux`` (into ``q``) of a stage's ``row`` and the next stage's
     value ``v_x``, ``v_xx``; ``work`` holds ``V_xx f_x`` and ``V_xx f_u``."""
@@ -107,7 +107,7 @@ def _q_terms(row: np.ndarray, v_x: np.ndarray, v_xx: np.ndarray, q: tuple, work:
                 q_uu[a, j] += row[F_U + M * i + a] * vf_u[i, j]
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def backward_pass(
     derivatives: np.ndarray, policy: Policy, mu: float, state_regularisation: bool
 ) -> BackwardOutcome:
@@ -180,7 +180,7 @@ def backward_pass(
     return BackwardOutcome(-1, linear, quadratic, iterations)
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def forward_pass(
     packed: np.ndarray, starts: np.ndarray, policy: Policy, alpha: float
 ) -> tuple[np.ndarray, np.ndarray, float]:
@@ -237,19 +237,19 @@ CONVERGED_MU = 1e-5
 """``iLQG.m``'s gradient test counts only with ``mu`` below this (a nearly Newton step)."""
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _raise_mu(mu: float, delta: float, factor: float, mu_min: float) -> tuple[float, float]:
     delta = max(delta * factor, factor)
     return max(mu * delta, mu_min), delta
 
 
-@nb.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _lower_mu(mu: float, delta: float, factor: float, mu_min: float) -> tuple[float, float]:
     delta = min(delta / factor, 1.0 / factor)
     return (mu * delta if mu > mu_min else 0.0), delta
 
 
-@nb.njit(cache=True)
+@njit(cache=True)
 def iterate(
     derivatives: np.ndarray,
     packed: np.ndarray,
