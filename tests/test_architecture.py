@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import re
 import shutil
 import subprocess
 import sys
@@ -325,3 +326,23 @@ def test_the_environment_is_read_only_through_declared_variables():
         and any(word in path.read_text() for word in ("os.environ", "getenv", "environ["))
     ]
     assert readers == []
+
+
+def test_the_layout_page_lists_every_module_in_its_folders_row():
+    """The map a newcomer is sent to: a row per folder of the package, naming each module."""
+    page = (ROOT / "docs" / "explanation" / "layout.md").read_text()
+    table = page[page.index("| folder of `src/formation_bench/` |") :].split("\n\n")[0]
+    rows = {}
+    for line in table.splitlines()[2:]:
+        found = re.match(r"\| `(\./|[a-z_/]+/)` \|", line)
+        assert found, line
+        rows[f"formation_bench/{found.group(1)}".removesuffix("./").rstrip("/")] = line
+    missing = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        folder = path.parent.relative_to(PACKAGE.parent).as_posix()
+        row = rows.get(folder)
+        if row is None:
+            missing.append(f"no row for src/{folder}/")
+        elif path.name != "__init__.py" and f"`{path.name}`" not in row:
+            missing.append(f"src/{folder}/{path.name}")
+    assert not sorted(set(missing)), sorted(set(missing))
