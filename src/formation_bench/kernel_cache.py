@@ -50,7 +50,7 @@ class LockedCache(FunctionCache):
             _release(lock)
             return loaded
         self._held = lock  # until the compilation is saved (save_overload) or has failed
-        _FAILED_COMPILES.watch(self)
+        _FAILED_COMPILES.register()
         return None
 
     def save_overload(self, sig: Any, data: Any) -> None:
@@ -96,7 +96,8 @@ class _FailedCompiles(event.Listener):
     def __init__(self) -> None:
         self.registered = False
 
-    def watch(self, cache: LockedCache) -> None:
+    def register(self) -> None:
+        """Listen to numba's compile events, once per process."""
         if not self.registered:
             event.register("numba:compile", self)
             self.registered = True

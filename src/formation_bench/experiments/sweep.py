@@ -16,8 +16,6 @@ results do not depend on queue order, worker count or which worker ran what.
 
 from __future__ import annotations
 
-import functools
-import json
 import signal
 import sys
 import time
@@ -313,7 +311,15 @@ def _execute(
         return
     by_key = {spec.key: spec for spec in pending}
     # the workers start by compiling different kernels (the results do not depend on order)
-    pending = compile_first(pending, _optimizer_of)
+    built: dict[tuple[str, str], Optimizer | None] = {}
+
+    def optimizer_of(spec: RunSpec) -> Optimizer | None:
+        key = (spec.optimizer_name, spec.optimizer_overrides)
+        if key not in built:
+            built[key] = _optimizer_of(spec)
+        return built[key]
+
+    pending = compile_first(pending, optimizer_of)
     results = (
         run_on_dask(pending, client, worker_timeout_s, notice=say)
         if client is not None
@@ -349,21 +355,13 @@ def _execute(
             results.close()
 
 
-@functools.lru_cache(maxsize=256)
-def _configured_optimizer(name: str, overrides: str) -> Optimizer:
-    from formation_bench.optimizers import get_optimizer
-    from formation_bench.pipeline.spec import from_json_value
-
-    return get_optimizer(name, **from_json_value(json.loads(overrides)))
-
-
 def _optimizer_of(spec: RunSpec) -> Optimizer | None:
     """The run's optimiser; None if it cannot be built here (the run itself says why)."""
     from formation_bench.plugins import load_plugins
 
     try:
         load_plugins(spec.plugins)
-        return _configured_optimizer(spec.optimizer_name, spec.optimizer_overrides)
+        return spec.optimizer()
     except Exception:
         return None
 

@@ -424,10 +424,12 @@ class RunSpec(Identified):
         """The scenario (under its registered name) and optimiser objects of this run: the
         configuration :attr:`config_hash` is taken of."""
         scenario_overrides = from_json_value(json.loads(self.scenario_overrides))
-        optimizer_overrides = from_json_value(json.loads(self.optimizer_overrides))
-        return (
-            get_scenario(self.scenario_name, **scenario_overrides),
-            get_optimizer(self.optimizer_name, **optimizer_overrides),
+        return get_scenario(self.scenario_name, **scenario_overrides), self.optimizer()
+
+    def optimizer(self) -> Optimizer:
+        """The optimiser object of this run (as :meth:`configured` builds it)."""
+        return get_optimizer(
+            self.optimizer_name, **from_json_value(json.loads(self.optimizer_overrides))
         )
 
     def build(self) -> tuple[Scenario, Optimizer]:
