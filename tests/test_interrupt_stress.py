@@ -34,13 +34,13 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 PRESSED_INSIDE = """
-signal.signal(signal.SIGINT, raise_interrupt)
+signal.signal(signal.SIGINT, {handler})
 pressed = []
 
 def press(frame, event, arg):
     if event == "call" and frame.f_code is {target} and not pressed:
         pressed.append(frame)
-        raise_interrupt(signal.SIGINT, frame)
+        {handler}(signal.SIGINT, frame)
 
 try:
     sys.setprofile(press)
@@ -56,20 +56,54 @@ try:
 except BaseException as err:
     print("raised", type(err).__name__, flush=True)
 """
-"""A script's end that presses Ctrl-C the first time Python enters the function whose code is
-``target`` during ``call`` (a profile hook standing in for the signal, so that the moment is
-exact), prints ``report`` if the call returns, and then waits for the interrupt."""
+"""A script's end that presses Ctrl-C (``handler`` taking the signal) the first time Python
+enters the function whose code is ``target`` during ``call`` (a profile hook standing in for
+the signal, so that the moment is exact), prints ``report`` if the call returns, and then
+waits for the interrupt."""
 
 
-def printed_when_pressed_inside(setup: str, target: str, call: str, report: str) -> list[str]:
+def printed_when_pressed_inside(
+    setup: str, target: str, call: str, report: str, handler: str = "raise_interrupt"
+) -> list[str]:
     """What the script ``setup`` + :data:`PRESSED_INSIDE` prints, run in a new process that
-    must end by itself (no death by a signal)."""
-    script = textwrap.dedent(setup) + PRESSED_INSIDE.format(target=target, call=call, report=report)
+    must end by itself (no death by a signal) and print nothing on its standard error."""
+    script = textwrap.dedent(setup) + PRESSED_INSIDE.format(
+        target=target, call=call, report=report, handler=handler
+    )
     done = subprocess.run(
         [sys.executable, "-c", script], capture_output=True, text=True, timeout=300
     )
     assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stderr == ""
     return done.stdout.splitlines()
+
+
+@pytest.mark.parametrize("handler", ["raise_interrupt", "_interrupt_once"])
+def test_ctrl_c_inside_a_weakref_callback_is_raised_again_after_python_discards_it(handler):
+    # Python prints and discards an exception raised in a weakref callback (importlib frees
+    # each module lock through one, so an import can land a Ctrl-C there): it was lost, and
+    # the command ran on to its end
+    setup = """
+        import signal, sys, time, weakref
+        from formation_bench.pipeline.interrupts import raise_interrupt
+        from formation_bench.cli.main import _interrupt_once
+
+        class Thing:
+            pass
+
+        def forgotten(ref):
+            pass
+
+        def make_and_forget():
+            thing = Thing()
+            ref = weakref.ref(thing, forgotten)
+            del thing
+            return ref() is None
+    """
+    printed = printed_when_pressed_inside(
+        setup, "forgotten.__code__", "make_and_forget()", '"forgotten", result', handler
+    )
+    assert printed == ["forgotten True", "raised KeyboardInterrupt"]
 
 
 @pytest.mark.slow

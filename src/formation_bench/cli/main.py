@@ -61,8 +61,10 @@ from formation_bench.pipeline.checks import (
     check_seed_count,
 )
 from formation_bench.pipeline.interrupts import (
+    delivered_again,
     interrupt_again_soon,
     is_interrupt,
+    raise_keyboard_interrupt,
     unsafe_to_raise,
 )
 from formation_bench.pipeline.outputs import write_metrics, write_text, write_trace
@@ -697,13 +699,13 @@ _first_press: list[float] = []
 
 def _interrupt_once(signum: int, frame: FrameType | None) -> None:
     now = time.monotonic()
-    if _first_press and now - _first_press[0] < REPEAT_GRACE_S:
-        return
     if unsafe_to_raise(frame):
         interrupt_again_soon(signum)  # not yet a press: it counts when it is raised
         return
+    if not delivered_again() and _first_press and now - _first_press[0] < REPEAT_GRACE_S:
+        return
     _first_press[:] = [now]
-    raise KeyboardInterrupt
+    raise_keyboard_interrupt(signum)
 
 
 PLUGIN_OPTION = "--plugin"

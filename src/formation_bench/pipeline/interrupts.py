@@ -23,6 +23,10 @@ it, and ends the process by SIGINT at exit (-2 instead of 130): libraries exec s
 they import (scipy's array API module does, when numba loads its cache).
 :func:`raise_interrupt` therefore raises only outside such places (:func:`unsafe_to_raise`);
 inside one it asks for the signal again a moment later, when Python is back in ordinary code.
+Python itself prints and discards an exception raised in a weakref callback, a ``__del__``
+or a garbage-collector callback (importlib runs one whenever a module lock is freed), which
+no frame test can tell apart: a KeyboardInterrupt discarded there is delivered again instead
+(:func:`raise_keyboard_interrupt`).
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from types import CodeType, FrameType
-from typing import Any
+from typing import Any, NoReturn
 
 AGAIN_AFTER_S = 0.001
 """How long after a signal that found Python where raising is unsafe it is delivered again:
@@ -120,13 +124,57 @@ def interrupt_again_soon(signum: int) -> None:
     timer.start()
 
 
+class _DeliverDiscardedAgain:
+    """``sys.unraisablehook`` around the one before it: a KeyboardInterrupt that Python
+    discards is delivered again (and not printed); anything else goes to the previous hook."""
+
+    def __init__(self, previous: Any) -> None:
+        self.previous = previous
+
+    def __call__(self, unraisable: Any) -> None:
+        error = unraisable.exc_value
+        if isinstance(error, BaseException) and is_interrupt(error):
+            signum = _raised_for[0]
+            _discarded.append(signum)
+            interrupt_again_soon(signum)
+            return
+        self.previous(unraisable)
+
+
+_raised_for: list[int] = [signal.SIGINT]
+"""The signal the last KeyboardInterrupt raised by this module's handlers stood for."""
+_discarded: list[int] = []
+"""Signals whose KeyboardInterrupt Python discarded and which were asked for again."""
+
+
+def raise_keyboard_interrupt(signum: int) -> NoReturn:
+    """Raise KeyboardInterrupt for ``signum`` from a signal handler, such that if Python
+    discards it (raised inside a weakref callback, a ``__del__`` or a garbage-collector
+    callback, where Python prints and drops any exception), the signal is delivered again a
+    moment later rather than lost."""
+    if not isinstance(sys.unraisablehook, _DeliverDiscardedAgain):
+        sys.unraisablehook = _DeliverDiscardedAgain(sys.unraisablehook)
+    _raised_for[0] = signum
+    raise KeyboardInterrupt
+
+
+def delivered_again() -> bool:
+    """Whether the signal a handler now handles is one whose KeyboardInterrupt Python
+    discarded (a handler that drops repeated presses must raise it all the same)."""
+    if _discarded:
+        _discarded.pop()
+        return True
+    return False
+
+
 def raise_interrupt(signum: int, frame: FrameType | None) -> None:
     """A signal handler: raise KeyboardInterrupt where the signal found the main thread, or,
     where that is unsafe, a moment later (:func:`unsafe_to_raise`)."""
     if unsafe_to_raise(frame):
         interrupt_again_soon(signum)
         return
-    raise KeyboardInterrupt
+    delivered_again()
+    raise_keyboard_interrupt(signum)
 
 
 @contextlib.contextmanager
