@@ -59,7 +59,10 @@ copybutton_line_continuation_character = "\\"
 # --- HTML ---
 html_theme = "furo"
 html_title = "formation-bench"
-html_static_path: list[str] = []
+# the site's own CSS (_static/site.css): how much room tables and code blocks get, checked in a
+# browser by perf/site_check.py
+html_static_path = ["_static"]
+html_css_files = ["site.css"]
 html_show_sourcelink = False
 
 

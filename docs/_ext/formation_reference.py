@@ -245,20 +245,23 @@ def settings_rows(obj: Any, prefix: str = "", tunable: bool = False) -> list[lis
     rows = []
     for info in describe_fields(obj):
         if _is_group(info.value):
-            blank = ["", "", ""] + ([""] if tunable else [])
-            rows.append([f"**{text(prefix + info.name)}** (group)", *blank, text(info.doc)])
+            rows.append([f"**{text(prefix + info.name)}** (group)", "", "", text(info.doc)])
             rows += settings_rows(info.value, f"{prefix}{info.name}.", tunable)
             continue
-        searched = [text(info.search)] if tunable else []
+        allowed = text(info.allowed)
+        if tunable and info.search:
+            allowed = f"{allowed}; tuning: {text(info.search)}" if allowed else text(info.search)
         rows.append(
-            [code(prefix + info.name), code(info.type), code(shown(info.value)), text(info.allowed),
-             *searched, text(info.doc)]
+            [code(prefix + info.name), f"{code(info.type)} = {code(shown(info.value))}", allowed,
+             text(info.doc)]
         )  # fmt: skip
     return rows
 
 
-SETTINGS_HEADER = ("setting", "type", "default", "allowed", "meaning")
-OPTIMIZER_SETTINGS_HEADER = ("setting", "type", "default", "allowed", "tuning", "meaning")
+# type and default share a cell, as do the allowed values and what a tuner searches: a column
+# fewer lets the tables of the longest setting names fit the page's column
+SETTINGS_HEADER = ("setting", "type = default", "allowed", "meaning")
+OPTIMIZER_SETTINGS_HEADER = ("setting", "type = default", "allowed; tuning", "meaning")
 
 
 def _equal(a: Any, b: Any) -> bool:
