@@ -34,6 +34,7 @@ from formation_bench.analysis.run_figures import (  # noqa: F401
     trigger_figure,
 )
 from formation_bench.analysis.run_figures import wide as _wide
+from formation_bench.mpc.families import NOMINAL
 from formation_bench.mpc.metrics import column_label, log_scale, pair_names
 
 
@@ -472,8 +473,8 @@ def metric_vs_level_figure(frame: pd.DataFrame, metric: str, hue: str = "optimiz
     per family (the nominal level first in each) and trigger setting, one colour per ``hue``."""
     sns.set_theme(style="whitegrid")
     data = frame.dropna(subset=[metric])
-    nominal = list(dict.fromkeys(data.loc[data["family"] == "nominal", "scenario"]))
-    levels = data[data["family"] != "nominal"].sort_values("level_order", kind="stable")
+    nominal = list(dict.fromkeys(data.loc[data["family"] == NOMINAL, "scenario"]))
+    levels = data[data["family"] != NOMINAL].sort_values("level_order", kind="stable")
     families = list(dict.fromkeys(levels["family"]))
     triggers = sorted(data["trigger"].unique(), key=str, reverse=True)  # "on" first
     order = sorted(data[hue].unique(), key=str)

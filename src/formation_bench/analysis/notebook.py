@@ -19,6 +19,7 @@ from formation_bench.analysis.paper import PAPER_FIGURES
 from formation_bench.analysis.suite_sections import Section, sections
 from formation_bench.experiments.store import load_results, load_traces
 from formation_bench.instances.instants import record_instants
+from formation_bench.mpc.families import NOMINAL
 from formation_bench.mpc.metrics import column_label
 from formation_bench.mpc.scenario import get_scenario
 from formation_bench.optimizers import Budget, get_optimizer
@@ -404,8 +405,8 @@ def robustness_sentence(section: Section, metric: str = "tracking_error_max_m") 
     name = column_label(metric)
     # each level against its own nominal run: same base scenario, optimiser, trigger and budget
     keys = ["optimizer", "trigger", "budget"]
-    nominal = rows[rows["family"] == "nominal"].set_index(["scenario", *keys])["median"]
-    levels = rows[rows["family"] != "nominal"].copy()
+    nominal = rows[rows["family"] == NOMINAL].set_index(["scenario", *keys])["median"]
+    levels = rows[rows["family"] != NOMINAL].copy()
     if "condition_baseline" not in levels or not len(levels):
         return f"No disturbed or faulty run has a median {name} to compare with a nominal one."
     paired = pd.MultiIndex.from_frame(levels[["condition_baseline", *keys]])

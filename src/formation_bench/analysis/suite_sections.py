@@ -4,7 +4,10 @@ obstacle and collision penalties (``obstacles``).
 
 What a run's scenario is (its UAVs, graph, disturbance family, penalties) is read from its
 registered name and overrides (:func:`scenario_columns`), never from its label, so every
-results folder that varies these gets the section, whatever the suite is called. A section
+results folder that varies these gets the section, whatever the suite is called. The
+disturbance and fault families are the harness's (:mod:`formation_bench.mpc.families`): a
+registered family's levels get their own blocks, and a run disturbed in a setting no family
+claims is refused rather than counted as nominal. A section
 has one table per *block*, one comparison (an (N, graph) cell against the complete graph; a
 disturbance level against the nominal runs; a scenario's penalties on against off): the
 optimisers as rows, the metrics as columns (constant ones on a line), each cell the median
@@ -42,6 +45,7 @@ from formation_bench.analysis.block_table import absent, constant_line, constant
 from formation_bench.analysis.cells import MetricColumn, metric_column, p_cell
 from formation_bench.analysis.comparison import analyse, prepare
 from formation_bench.analysis.stats import SIGNIFICANCE
+from formation_bench.mpc.families import FAMILIES, JOINED, NOMINAL, scenario_families
 from formation_bench.mpc.metrics import Better, metric_of
 from formation_bench.mpc.scenario import CommunicationGraph, Scenario
 from formation_bench.pipeline.record import stored_scenarios
@@ -69,70 +73,11 @@ OBSTACLE_METRICS = (
     "tracking_error_max_m",
     "distance_error_rms_m",
 )
-NOMINAL = "nominal"
 PENALTIES_OFF = "off"
 COMPLETE = "complete"
 
 
 # --- what each run's scenario is ----------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Family:
-    """A kind of disturbance or fault: when a scenario has it, and how strongly."""
-
-    name: str
-    active: Callable[[Scenario], bool]
-    severity: Callable[[Scenario], tuple[float, ...]]
-    """Sorts the levels of the family, mildest first."""
-
-
-FAMILIES = (
-    Family(
-        "wind",
-        lambda s: (
-            s.disturbances.gust_std_m_s > 0 or any(w != 0 for w in s.disturbances.wind_mean_m_s)
-        ),
-        lambda s: (math.hypot(*s.disturbances.wind_mean_m_s), s.disturbances.gust_std_m_s),
-    ),
-    Family(
-        "noise",
-        lambda s: (
-            max(
-                s.disturbances.position_noise_std_m,
-                s.disturbances.heading_noise_std_rad,
-                s.disturbances.speed_noise_std_m_s,
-            )
-            > 0
-        ),
-        lambda s: (
-            s.disturbances.position_noise_std_m,
-            s.disturbances.heading_noise_std_rad,
-            s.disturbances.speed_noise_std_m_s,
-        ),
-    ),
-    Family(
-        "packet loss",
-        lambda s: s.communication.packet_loss > 0,
-        lambda s: (s.communication.packet_loss, s.communication.loss_correlation),
-    ),
-    Family(
-        "delay",
-        lambda s: s.communication.delay_steps > 0 or s.communication.delay_jitter_steps > 0,
-        lambda s: (s.communication.delay_steps, s.communication.delay_jitter_steps),
-    ),
-    Family(
-        "mismatch",
-        lambda s: (
-            s.disturbances.plant_accel_gain != 1.0 or s.disturbances.plant_turn_rate_gain != 1.0
-        ),
-        lambda s: (
-            abs(1.0 - s.disturbances.plant_accel_gain),
-            abs(1.0 - s.disturbances.plant_turn_rate_gain),
-        ),
-    ),
-)
-"""The disturbance and fault families of the robustness section, in its order."""
 
 
 def graph_label(scenario: Scenario) -> str:
@@ -155,16 +100,16 @@ def penalties_label(scenario: Scenario) -> str:
 
 
 def _describe(scenario: Scenario) -> dict[str, object]:
-    active = [k for k, family in enumerate(FAMILIES) if family.active(scenario)]
+    active = scenario_families(scenario)
     if not active:
         family, family_index, severity = NOMINAL, -1, ()
     elif len(active) == 1:
-        family_index = active[0]
-        family = FAMILIES[family_index].name
-        severity = FAMILIES[family_index].severity(scenario)
+        family_index = FAMILIES.index(active[0])
+        family = active[0].name
+        severity = active[0].severity(scenario)
     else:  # several at once: after the single families
-        family, family_index = " + ".join(FAMILIES[k].name for k in active), len(FAMILIES)
-        severity = tuple(v for k in active for v in FAMILIES[k].severity(scenario))
+        family, family_index = JOINED.join(f.name for f in active), len(FAMILIES)
+        severity = tuple(v for f in active for v in f.severity(scenario))
     return {
         "n_uav": scenario.n_uav,
         "graph": graph_label(scenario),
@@ -179,8 +124,10 @@ def _describe(scenario: Scenario) -> dict[str, object]:
 
 def scenario_columns(results: pd.DataFrame) -> pd.DataFrame:
     """``results`` with what each run's scenario is: ``n_uav``, ``graph``, ``family`` (of
-    :data:`FAMILIES`, ``nominal`` or several joined by ``+``), ``penalties``, ``obstacles``,
-    ``safety_radius_m``, and ``level_order`` (levels sorted by family, then severity).
+    the registered :data:`~formation_bench.mpc.families.FAMILIES`, ``nominal`` or several
+    joined by ``+``), ``penalties``, ``obstacles``, ``safety_radius_m``, and ``level_order``
+    (levels sorted by family, then severity). A scenario disturbed in a setting no family
+    claims raises :class:`~formation_bench.mpc.families.UnclaimedDisturbanceError`.
 
     Each run's scenario is the one its row records (:func:`~formation_bench.pipeline.record.
     stored_scenario`), not today's registry's; a row whose scenario cannot be rebuilt here

@@ -256,6 +256,7 @@ def cmd_score(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     # the statistics and plotting libraries are imported only by the command that uses them
     from formation_bench.analysis.report import ReportError, make_report
+    from formation_bench.mpc.families import UnclaimedDisturbanceError
 
     start = time.perf_counter()
     results = Path(args.results)
@@ -313,7 +314,7 @@ def cmd_report(args: argparse.Namespace) -> int:
                 results, args.page, folder,
                 report=report, baseline=args.baseline, compare=args.compare, tuned=tuned,
             )  # fmt: skip
-    except (ReportError, OutputError) as err:
+    except (ReportError, OutputError, UnclaimedDisturbanceError) as err:
         print(f"formation-bench report: error: {err}", file=sys.stderr)
         return 2
     print(
