@@ -22,7 +22,7 @@ import os
 import shlex
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pandas as pd
 
@@ -89,28 +89,53 @@ def suite_provenance(results_dir: Path, results: pd.DataFrame) -> Provenance:
 
     manifest = read_manifest(ResultStore(results_dir)) or {}
     sessions = manifest.get("sessions") or []
-    commands = tuple(
-        dict.fromkeys(_shown_command(s["command"]) for s in sessions if "command" in s)
+    return Provenance(
+        "suite",
+        _suite_name(manifest, results),
+        tuple(dict.fromkeys(_shown_command(s["command"]) for s in sessions if "command" in s)),
+        _span(_run_days(sessions, results)),
+        _suite_version(manifest, results),
+        _suite_machine(manifest, results),
     )
+
+
+def _suite_name(manifest: dict[str, Any], results: pd.DataFrame) -> str:
+    """The suite the manifest names, else the suites the run rows name."""
+    return (manifest.get("suite") or {}).get("name") or ", ".join(
+        sorted(results["suite"].astype(str).unique()) if "suite" in results else []
+    )
+
+
+def _run_days(sessions: list[dict[str, Any]], results: pd.DataFrame) -> list[str | None]:
+    """The days the sweep sessions started and finished; the days the runs finished when no
+    session recorded a date (or there is no manifest)."""
     days = [_day(s.get(k)) for s in sessions for k in ("started", "finished")]
     if not any(days) and "finished_at" in results:
         days = [_day(v) for v in results["finished_at"].dropna()]
+    return days
+
+
+def _suite_version(manifest: dict[str, Any], results: pd.DataFrame) -> str:
+    """The formation-bench version the manifest records, else the run rows', with the commits
+    the rows record (:func:`commit_text`)."""
     version = (manifest.get("versions") or {}).get("formation-bench")
     if version is None and "version" in results:
         version = _distinct(results, "version")
-    if version is not None:
-        version = f"{version}{commit_text(results)}"
-    machine_info = manifest.get("machine") or {}
-    cpu = machine_info.get("cpu_model")
+    if version is None:
+        return "not recorded"
+    return f"{version}{commit_text(results)}" or "not recorded"
+
+
+def _suite_machine(manifest: dict[str, Any], results: pd.DataFrame) -> str:
+    """The CPU model the manifest records, else the run rows', and the manifest's CPU count."""
+    recorded = manifest.get("machine") or {}
+    cpu = recorded.get("cpu_model")
     if cpu is None and "cpu_model" in results:
         cpu = ", ".join(sorted(results["cpu_model"].dropna().astype(str).unique()))
     machine = str(cpu or "not recorded")
-    if machine_info.get("cpu_count"):
-        machine += f", {machine_info['cpu_count']} CPUs"
-    name = (manifest.get("suite") or {}).get("name") or ", ".join(
-        sorted(results["suite"].astype(str).unique()) if "suite" in results else []
-    )
-    return Provenance("suite", name, commands, _span(days), str(version or "not recorded"), machine)
+    if recorded.get("cpu_count"):
+        machine += f", {recorded['cpu_count']} CPUs"
+    return machine
 
 
 def _recorded_command(command: str) -> str:
@@ -283,52 +308,74 @@ def check_page(
     immutable), or an existing file that is not a page this command wrote, or is one and
     ``--overwrite`` is not given; and the page's figure ``image``, when it has one, in a
     folder that is not writable, or existing without ``--overwrite``."""
-    from formation_bench.experiments.store import RUNS, SCORE, TRACES
-    from formation_bench.pipeline.staging import OutputError, unwritable_parent
+    from formation_bench.pipeline.staging import OutputError
 
-    def refused(reason: str) -> OutputError:
-        return OutputError(f"--page {page}: {reason}")
+    problem = _page_place_problem(page, results_dir, report_folder)
+    if problem is None and image is not None:
+        figure_problem = _figure_problem(image, overwrite=overwrite)
+        if figure_problem is not None:
+            problem = f"its figure {image}: {figure_problem}"
+    if problem is None and os.path.lexists(page):
+        problem = _existing_page_problem(Path(os.path.realpath(page)), overwrite=overwrite)
+    if problem is not None:
+        raise OutputError(f"--page {page}: {problem}")
+
+
+def _page_place_problem(page: Path, results_dir: Path, report_folder: Path) -> str | None:
+    """Why ``page`` cannot be written where it is (None when it can): not a Markdown file,
+    inside a folder that the store or ``--overwrite`` of the report folder may replace, or in
+    a folder that is not writable."""
+    from formation_bench.experiments.store import RUNS, SCORE, TRACES
+    from formation_bench.pipeline.staging import unwritable_parent
 
     if page.suffix != ".md" or page.is_dir():
-        raise refused("give a Markdown file (.md), not a folder")
+        return "give a Markdown file (.md), not a folder"
     where = Path(os.path.realpath(page))
     owned = [Path(os.path.realpath(results_dir / name)) for name in (RUNS, TRACES, SCORE)]
     for folder in (*owned, Path(os.path.realpath(report_folder))):
         if where.is_relative_to(folder):
-            raise refused(
+            return (
                 f"is inside {folder}, which belongs to the results folder's store or to the "
                 "report folder (replaced as a whole by --overwrite); give a file outside them"
             )
-    problem = unwritable_parent(where)
-    if problem is not None:
-        raise refused(problem)
-    if image is not None:
-        problem = unwritable_parent(Path(os.path.realpath(image)))
-        if problem is None and os.path.lexists(image) and not overwrite:
-            problem = "exists; add --overwrite to write it anew"
-        if problem is None and os.path.lexists(image) and not Path(image).is_file():
-            problem = "exists and is not a regular file"
-        if problem is not None:
-            raise refused(f"its figure {image}: {problem}")
-    if not os.path.lexists(page):
-        return
+    return unwritable_parent(where)
+
+
+def _figure_problem(image: Path, *, overwrite: bool) -> str | None:
+    """Why the page's figure ``image`` cannot be written (None when it can)."""
+    from formation_bench.pipeline.staging import unwritable_parent
+
+    problem = unwritable_parent(Path(os.path.realpath(image)))
+    if problem is not None or not os.path.lexists(image):
+        return problem
+    if not overwrite:
+        return "exists; add --overwrite to write it anew"
+    if not Path(image).is_file():
+        return "exists and is not a regular file"
+    return None
+
+
+def _existing_page_problem(where: Path, *, overwrite: bool) -> str | None:
+    """Why the existing file ``where`` (the page, links resolved) must not be overwritten
+    (None when it may): only a page this command wrote is, and only with ``--overwrite``."""
     if not where.is_file():
-        raise refused("exists and is not a regular file")
+        return "exists and is not a regular file"
     if not os.access(where, os.W_OK):
-        raise refused("exists and is not writable (read-only or immutable)")
+        return "exists and is not writable (read-only or immutable)"
     try:
         ours = is_results_page(where)
     except OSError as err:
-        raise refused(f"exists and cannot be read ({err.strerror})") from None
+        return f"exists and cannot be read ({err.strerror})"
     if not ours:
-        raise refused(
+        return (
             "exists and is not a results page written by 'formation-bench report' (its first "
             "paragraph does not say so), so it is not overwritten; give another file"
         )
     if not overwrite:
-        raise refused(
+        return (
             "exists; add --overwrite to write it anew (the findings between its markers are kept)"
         )
+    return None
 
 
 def is_results_page(path: Path) -> bool:
