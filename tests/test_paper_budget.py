@@ -180,3 +180,30 @@ def test_the_report_writes_the_section_and_the_form_that_ships(tmp_path):
     line = paper_budget.shipped_line("a", tmp_path / "paper_budget_runs.csv")
     assert line.startswith("Budget the paper needs (a, figures together on 9 of 10 seeds")
     assert "all 11: 200 evaluations (errors from 10 s), 100 evaluations (from settling)" in line
+
+
+def test_only_runs_of_the_unmodified_paper_scenario_count_for_the_section_and_its_tables():
+    unmodified = sweep(lambda *_: {})
+    changed = unmodified.assign(scenario_overrides='{"n_steps":12}')
+    # the paper scenario changed, at both budgets with and without the trigger: the figures
+    # are not of that problem, so there is nothing to tabulate and no section
+    assert paper_budget.runs_table(changed).empty
+    assert not paper_budget.applies(changed)
+    # unmodified runs at one budget beside changed ones at two: one budget, no section
+    one_budget = unmodified[unmodified["budget"] == "max_evaluations=200"]
+    assert not paper_budget.applies(pd.concat([one_budget, changed]))
+    both = pd.concat([unmodified, changed])
+    assert paper_budget.applies(both)
+    pd.testing.assert_frame_equal(
+        paper_budget.runs_table(both), paper_budget.runs_table(unmodified)
+    )
+
+
+def test_runs_without_a_seed_holding_both_trigger_settings_get_no_section():
+    frame = sweep(lambda *_: {})
+    # the trigger on at one budget, off at the other: no seed is a pair of runs
+    unpaired = frame[frame["trigger"] == (frame["budget"] == "max_evaluations=100")]
+    assert unpaired["trigger"].nunique() == 2 and unpaired["budget"].nunique() == 3
+    assert not paper_budget.applies(unpaired)
+    assert paper_budget.smallest_budgets(paper_budget.budget_table(
+        paper_budget.runs_table(unpaired))).empty  # fmt: skip

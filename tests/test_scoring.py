@@ -498,3 +498,35 @@ def test_the_tuning_budgets_come_from_the_registered_tuned_variants_else_a_note_
     none = score_report.write_score_report(scores, tmp_path / "b", figures=False)
     assert "Rank change" not in none
     assert "modified-bso-tuned, pso-tuned: not registered here as a tuned variant" in none
+
+
+def test_a_tuned_pair_scored_only_off_its_tuning_budget_has_no_rank_change_and_a_line_says_so(
+    tmp_path,
+):
+    # pso and pso-tuned scored at 300 evaluations only, tuned at 1200, and no optimiser at its
+    # own budget: at 1200 there is nothing to rank
+    at_300 = tuned_scores()
+    at_300 = at_300[at_300["optimizer"].isin(["pso", "pso-tuned"]) & (at_300["budget"] == AT_1200)]
+    at_300 = at_300.assign(budget="max_evaluations=300")
+    summary = score_report.summary_table(at_300)
+    budgets = {"pso-tuned": 1200}
+    assert score_report.rank_change_table(at_300, summary, budgets).empty
+    line = (
+        "no rank change of pso with pso-tuned, tuned at max_evaluations=1200: pso-tuned and pso "
+        "have no score runs at that budget (nor at default), so there is nothing to compare."
+    )
+    assert score_report.rank_change_notes(summary, budgets) == [line]
+    markdown = score_report.write_score_report(
+        at_300.assign(split="test"), tmp_path, figures=False, tuning_budgets=budgets
+    )
+    assert f"Note: {line}" in markdown and "Rank change" not in markdown
+    assert pd.read_csv(tmp_path / "score_rank_change.csv").empty
+    # one of the two at the tuning budget: the other is named
+    scores = tuned_scores()
+    summary = score_report.summary_table(scores)
+    assert score_report.rank_change_notes(summary, {"pso-tuned": 300}) == [
+        "no rank change of pso with pso-tuned, tuned at max_evaluations=300: pso-tuned has no "
+        "score runs at that budget (nor at default), so there is nothing to compare."
+    ]
+    # every family ranked: no line
+    assert score_report.rank_change_notes(summary, {"pso-tuned": 1200}) == []

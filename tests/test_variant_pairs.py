@@ -161,3 +161,23 @@ def test_an_ablation_with_every_variant_tuned_pairs_each_and_takes_a_tuned_basel
     assert len(tested) == 2 * 7  # per trigger, every other level against the tuned baseline
     with pytest.raises(ReportError, match="not a level of optimizer"):
         analyse(frame, baseline=["pso-tuned"], metrics=["steady_state_cost"])
+
+
+def test_a_metric_no_run_of_a_level_has_shows_as_missing_with_its_count():
+    seeds = np.arange(6, dtype=float)
+    frame = pd.concat([_runs("pso", seeds + 100.0), _runs("pso-warm", seeds)])
+    # no pso run settles: pivoting the block on the optimiser leaves it no column
+    frame["settling_time_s"] = np.where(frame["optimizer"] == "pso", np.nan, 20.0 + frame["seed"])
+    table = pair_table(frame, metrics=("steady_state_cost", "settling_time_s"))
+    settling = table.set_index("metric").loc["settling_time_s"]
+    assert settling["n_pairs"] == 0
+    assert math.isnan(settling["p"]) and math.isnan(settling["a12"])
+    # no pairs: each level's median over its own runs says which one has no value
+    assert settling["variant_median"] == 22.5 and math.isnan(settling["base_median"])
+    assert not bool(settling["significant"])
+    # the other metric keeps its pairs and its exact p
+    assert table.set_index("metric").loc["steady_state_cost", "p"] == pytest.approx(2.0 / 2**6)
+    text = to_markdown(table)
+    (row,) = [line for line in text.splitlines() if line.startswith("| pso-warm | pso | 6 |")]
+    assert row.endswith("| 22.5 vs – (n 0), –, A12 – |"), row
+    assert "– (n 0): no run of the configuration has a value" in text

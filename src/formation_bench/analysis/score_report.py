@@ -29,7 +29,8 @@ above :data:`FAILURE_GAP`, charged at the slowest solve at the same budget). Bes
   (:func:`rank_change_table`): at the evaluation budget it was tuned at (as its registered
   tuned-variant file records it), its rank with every
   family at its default configuration against its tuned variant's rank with every family
-  tuned, and the tuned variant against the family paired by problem;
+  tuned, and the tuned variant against the family paired by problem (a note names a family
+  left out because it or its tuned variant has no score runs at that budget, nor at its own);
 - COCO's expected running time to each target, the Dolan-More performance profile of solve
   time and, with figures, the runtime ECDF.
 
@@ -366,49 +367,16 @@ def rank_change_table(
     the family paired by problem: Wilcoxon's two-sided p, Holm-adjusted over the families at
     the budget, and A12 = P(tuned > default)."""
     problems = per_problem(headline_trials(_with_measures(scores)))
-    families = [
-        (tuned, family, tuning_budgets[tuned])
-        for tuned, family in tuned_families(sorted(summary["optimizer"].unique()))
-        if tuned in tuning_budgets
-    ]
+    families = _known_families(summary, tuning_budgets)
     rows = []
     for tuning_budget in sorted({b for _, _, b in families}):
         budget = budget_label(Budget(max_evaluations=tuning_budget))
         ranked = _ranking_rows(summary, budget)
-        defaults = ranked[[not _is_tuned(name) for name in ranked.index]]["norm_gap_median"]
         here = [
-            (t, f)
-            for t, f, b in families
-            if b == tuning_budget and t in ranked.index and f in ranked.index
+            (t, f) for t, f, b in families if b == tuning_budget and not _unranked(ranked, t, f)
         ]
-        tuned_medians = defaults.rename(index={f: t for t, f in here})
-        for tuned, _ in here:
-            tuned_medians[tuned] = ranked.loc[tuned, "norm_gap_median"]
-        default_rank, tuned_rank = _ranks(defaults), _ranks(tuned_medians)
-        found = []
-        for tuned, family in here:
-            x, y = (_problem_gaps(problems, name, ranked.loc[name, "budget"])
-                    for name in (tuned, family))  # fmt: skip
-            paired = pd.concat([x, y], axis=1, join="inner").dropna()
-            compared = stats.paired_comparison(paired.iloc[:, 0], paired.iloc[:, 1])
-            found.append(
-                {
-                    "budget": budget,
-                    "family": family,
-                    "tuned": tuned,
-                    "optimizers": len(defaults),
-                    "default_rank": default_rank[family],
-                    "tuned_rank": tuned_rank[tuned],
-                    "rank_change": int(default_rank[family] - tuned_rank[tuned]),
-                    **{f"default_{k}": ranked.loc[family, f"norm_gap_{k}"] for k in _MEDIAN},
-                    **{f"tuned_{k}": ranked.loc[tuned, f"norm_gap_{k}"] for k in _MEDIAN},
-                    "pairs": compared["pairs"],
-                    "p": compared["p"],
-                    "a12": compared["a12"],
-                }
-            )
-        stats.holm_family(found)
-        rows += found
+        if here:  # else nothing to compare at this budget: rank_change_notes says why
+            rows += _rank_changes_at(problems, ranked, budget, here)
     columns = [
         "budget", "family", "tuned", "optimizers", "default_rank", "tuned_rank", "rank_change",
         *(f"default_{k}" for k in _MEDIAN), *(f"tuned_{k}" for k in _MEDIAN), "pairs", "p",
@@ -418,6 +386,78 @@ def rank_change_table(
 
 
 _MEDIAN = ("median", "ci_low", "ci_high")
+
+
+def _rank_changes_at(
+    problems: pd.DataFrame, ranked: pd.DataFrame, budget: str, here: list[tuple[str, str]]
+) -> list[dict]:
+    """The rows of :func:`rank_change_table` at ``budget`` of the ``(tuned variant, family)``
+    pairs ``here``, both of each ranked in ``ranked`` (a :func:`_ranking_rows`); ``problems``
+    is a :func:`per_problem` table."""
+    defaults = ranked[[not _is_tuned(name) for name in ranked.index]]["norm_gap_median"]
+    tuned_medians = defaults.rename(index={f: t for t, f in here})
+    for tuned, _ in here:
+        tuned_medians[tuned] = ranked.loc[tuned, "norm_gap_median"]
+    default_rank, tuned_rank = _ranks(defaults), _ranks(tuned_medians)
+    found = []
+    for tuned, family in here:
+        x, y = (_problem_gaps(problems, name, ranked.loc[name, "budget"])
+                for name in (tuned, family))  # fmt: skip
+        paired = pd.concat([x, y], axis=1, join="inner").dropna()
+        compared = stats.paired_comparison(paired.iloc[:, 0], paired.iloc[:, 1])
+        found.append(
+            {
+                "budget": budget,
+                "family": family,
+                "tuned": tuned,
+                "optimizers": len(defaults),
+                "default_rank": default_rank[family],
+                "tuned_rank": tuned_rank[tuned],
+                "rank_change": int(default_rank[family] - tuned_rank[tuned]),
+                **{f"default_{k}": ranked.loc[family, f"norm_gap_{k}"] for k in _MEDIAN},
+                **{f"tuned_{k}": ranked.loc[tuned, f"norm_gap_{k}"] for k in _MEDIAN},
+                "pairs": compared["pairs"],
+                "p": compared["p"],
+                "a12": compared["a12"],
+            }
+        )
+    stats.holm_family(found)
+    return found
+
+
+def _known_families(
+    summary: pd.DataFrame, tuning_budgets: dict[str, int]
+) -> list[tuple[str, str, int]]:
+    """``(tuned variant, family, tuning budget)`` of every family of ``summary`` with a tuned
+    variant whose tuning budget ``tuning_budgets`` knows."""
+    return [
+        (tuned, family, tuning_budgets[tuned])
+        for tuned, family in tuned_families(sorted(summary["optimizer"].unique()))
+        if tuned in tuning_budgets
+    ]
+
+
+def _unranked(ranked: pd.DataFrame, tuned: str, family: str) -> list[str]:
+    """Those of ``tuned`` and ``family`` that have no leaderboard row in ``ranked`` (a
+    :func:`_ranking_rows`), so no rank there."""
+    return [name for name in (tuned, family) if name not in ranked.index]
+
+
+def rank_change_notes(summary: pd.DataFrame, tuning_budgets: dict[str, int]) -> list[str]:
+    """A line per family with a tuned variant whose tuning budget ``tuning_budgets`` knows
+    but which :func:`rank_change_table` leaves out: the variant or the family has no score
+    runs at that budget, nor at its own."""
+    notes = []
+    for tuned, family, tuning_budget in _known_families(summary, tuning_budgets):
+        budget = budget_label(Budget(max_evaluations=tuning_budget))
+        unranked = _unranked(_ranking_rows(summary, budget), tuned, family)
+        if unranked:
+            notes.append(
+                f"no rank change of {family} with {tuned}, tuned at {budget}: "
+                f"{' and '.join(unranked)} {'has' if len(unranked) == 1 else 'have'} no score "
+                f"runs at that budget (nor at {DEFAULT_BUDGET}), so there is nothing to compare."
+            )
+    return notes
 
 
 def _problem_gaps(problems: pd.DataFrame, optimizer: str, budget: str) -> pd.Series:
@@ -740,7 +780,7 @@ def write_score_report(
     splits = instance_splits(scores)
     if len(splits) == 1:
         tables = _score_tables(scores, tuning_budgets)
-        markdown = _markdown(scores, tables, [*_notes(scores), *tuning_notes])
+        markdown = _markdown(scores, tables, [*_notes(scores), *tuning_notes], tuning_budgets)
         figure_sets = {"": (scores, tables["profile"])}
     else:
         shown = ", ".join(split or "none (a library without splits)" for split in splits)
@@ -760,9 +800,10 @@ def write_score_report(
             for name in SCORE_TABLES
         }  # fmt: skip
         markdown = "\n\n".join(
-            _markdown(part, per_split[split], [note, *_notes(part), *tuning_notes], split=split)
+            _markdown(part, per_split[split], [note, *_notes(part), *tuning_notes],
+                      tuning_budgets, split)
             for split, part in parts.items()
-        )
+        )  # fmt: skip
         figure_sets = {split: (part, per_split[split]["profile"]) for split, part in parts.items()}
     for name, table in tables.items():
         table.to_csv(folder / f"score_{name}.csv", index=False)
@@ -787,7 +828,11 @@ def _score_tables(scores: pd.DataFrame, tuning_budgets: dict[str, int]) -> dict[
 
 
 def _markdown(
-    scores: pd.DataFrame, tables: dict[str, pd.DataFrame], notes: list[str], split: str = ""
+    scores: pd.DataFrame,
+    tables: dict[str, pd.DataFrame],
+    notes: list[str],
+    tuning_budgets: dict[str, int],
+    split: str = "",
 ) -> str:
     return to_markdown(
         tables["summary"],
@@ -795,7 +840,7 @@ def _markdown(
         tables["phases"],
         tables["paired"],
         library=_library_label(scores, split),
-        notes=notes,
+        notes=[*notes, *rank_change_notes(tables["summary"], tuning_budgets)],
         rank_change=tables["rank_change"],
     )
 

@@ -6,8 +6,10 @@ with ``<base>`` (``pso``) wherever a block of the results (scenario, trigger, bu
 both, on every headline metric the runs carry: median of each, the median of the paired
 differences, Wilcoxon signed-rank (two-sided) Holm-adjusted over the pairs of one kind
 (:data:`VARIANT_KINDS`) in a block and metric, and the Vargha-Delaney A12 = P(variant > base)
-(below 0.5: the variant's values are lower). The closed-loop counterpart of the score
-report's paired table.
+(below 0.5: the variant's values are lower). A metric none of the runs of one of the two has
+(a settling time where no run settled) has no pairs: no test, and that level's median shows
+as missing with its count of runs with a value, ``– (n 0)``. The closed-loop counterpart of
+the score report's paired table.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from dataclasses import dataclass
 import pandas as pd
 
 from formation_bench.analysis import stats
-from formation_bench.analysis.cells import metric_column, p_cell
+from formation_bench.analysis.cells import MetricColumn, metric_column, p_cell
 from formation_bench.analysis.comparison import prepare
 from formation_bench.mpc.metrics import headline_metrics
 
@@ -45,6 +47,10 @@ their kinds."""
 VARIANT_SUFFIXES = tuple(kind.suffix for kind in VARIANT_KINDS)
 """Name endings of the variants compared with the configuration they vary."""
 BLOCK = ["scenario", "trigger", "budget"]
+MEDIANS = ("variant_median", "base_median")
+NO_VALUE = "(n 0)"
+"""After the median of a level none of whose runs has a value: the count of its runs with
+one, written as the report's tables write it where some runs have none."""
 
 
 def variant_kind(level: str, suffixes: tuple[str, ...] = VARIANT_SUFFIXES) -> str | None:
@@ -81,15 +87,17 @@ def pair_table(results: pd.DataFrame, metrics: tuple[str, ...] | None = None) ->
     metrics = tuple(m for m in metrics if m in frame)
     rows = []
     for block_values, block in frame.groupby(BLOCK, sort=False):
-        pairs = variant_pairs(sorted(block["optimizer"].unique()))
+        levels = sorted(block["optimizer"].unique())
+        pairs = variant_pairs(levels)
         for metric in metrics:
+            # pivot_table drops a level none of whose runs has a value (a settling time where
+            # no run settled): reindexed, such a level has its column, all missing
             table = block.pivot_table(
                 index="seed", columns="optimizer", values=metric, aggfunc="first"
-            )
+            ).reindex(columns=levels)
             found = []
             for variant, base in pairs:
-                pair = table[[variant, base]].dropna()
-                compared = stats.paired_comparison(pair[variant], pair[base])
+                compared = _compared(table, variant, base)
                 found.append(
                     {
                         **dict(zip(BLOCK, block_values, strict=True)),
@@ -109,6 +117,26 @@ def pair_table(results: pd.DataFrame, metrics: tuple[str, ...] | None = None) ->
                 stats.holm_family([r for r in found if r["kind"] == kind])
             rows.extend(found)
     return pd.DataFrame(rows)
+
+
+def _compared(table: pd.DataFrame, variant: str, base: str) -> dict[str, float | int]:
+    """:func:`~.stats.paired_comparison` of ``variant`` and ``base`` (columns of ``table``,
+    seeds as rows) over the seeds where both have a value."""
+    pair = table[[variant, base]].dropna()
+    compared = stats.paired_comparison(pair[variant], pair[base])
+    if not compared["pairs"]:
+        # no median over pairs: each over its own runs says which of the two has no value
+        # (missing only for a level none of whose runs has one)
+        compared["x_median"], compared["y_median"] = (
+            float(table[name].median()) for name in (variant, base)
+        )
+    return compared
+
+
+def _no_value(row: pd.Series, median: float) -> bool:
+    """Whether ``median`` (of a row of :func:`pair_table`) is missing because no run of its
+    level has a value (with pairs, medians are over them and never missing)."""
+    return not row["n_pairs"] and pd.isna(median)
 
 
 def to_markdown(table: pd.DataFrame) -> str:
@@ -132,16 +160,23 @@ def to_markdown(table: pd.DataFrame) -> str:
             by_metric = pair.set_index("metric")
             cells = []
             for metric, column in zip(metrics, columns, strict=True):
-                row = by_metric.loc[metric]
-                mark = " *" if row["significant"] else ""
-                cells.append(
-                    f"{column.value(row['variant_median'])} vs {column.value(row['base_median'])}"
-                    f", {p_cell(row['p_holm'])}{mark}, A12 {row['a12']:.2f}"
-                )
+                cells.append(_cell(column, by_metric.loc[metric]))
             pairs = int(by_metric["n_pairs"].max())
             lines.append(f"| {variant} | {base} | {pairs} | " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines).rstrip() + "\n"
+
+
+def _cell(column: MetricColumn, row: pd.Series) -> str:
+    """``variant median vs base median, p (Holm), A12``; the median of a level none of whose
+    runs has a value is ``– (n 0)``, and a test without pairs ``–``."""
+    medians = [
+        f"{column.value(median)} {NO_VALUE}" if _no_value(row, median) else column.value(median)
+        for median in (row[m] for m in MEDIANS)
+    ]
+    mark = " *" if row["significant"] else ""
+    a12 = "–" if pd.isna(row["a12"]) else f"{row['a12']:.2f}"
+    return f"{medians[0]} vs {medians[1]}, {p_cell(row['p_holm'])}{mark}, A12 {a12}"
 
 
 def _intro(table: pd.DataFrame) -> str:
@@ -157,8 +192,11 @@ def _intro(table: pd.DataFrame) -> str:
             + ")"
         )
         family = "the pairs of one kind of variant in the block and metric"
+    # said only where a cell shows it, so the text above every other table is as it was
+    shown = any(_no_value(r, r[m]) for _, r in table.iterrows() for m in MEDIANS)
+    missing = f" – {NO_VALUE}: no run of the configuration has a value." if shown else ""
     return (
         f"{held}, paired by seed. A cell: the variant's median vs the base's, the Wilcoxon "
         f"signed-rank p (two-sided, Holm-adjusted over {family}; * below 0.05) and A12 = "
-        "P(variant > base) (< 0.5: lower values than the base)."
+        f"P(variant > base) (< 0.5: lower values than the base).{missing}"
     )
