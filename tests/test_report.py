@@ -5,13 +5,25 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from formation_bench.analysis.cells import metric_column
+from formation_bench.analysis import cells
+from formation_bench.analysis.cells import (
+    COLUMN_PADDING,
+    TABLE_WIDTH,
+    Grid,
+    column_width,
+    fitted,
+    metric_column,
+    split_columns,
+)
+from formation_bench.analysis.comparison import analyse
+from formation_bench.analysis.report import to_markdown
 from formation_bench.analysis.results_page import (
     FINDINGS_END,
     FINDINGS_START,
     write_results_page,
 )
 from formation_bench.cli.main import main
+from formation_bench.experiments.store import load_results
 from formation_bench.experiments.suite import parse_suite
 from formation_bench.experiments.sweep import run_sweep
 from formation_bench.mpc.metrics import (
@@ -45,6 +57,107 @@ overrides = { max_iterations = 3 }
 name = "paper"
 overrides = { n_steps = 12, settle_time_s = 1.0 }
 """
+
+
+def tables_in(text: str) -> list[list[list[str]]]:
+    """The Markdown tables of ``text``, each as its rows of cells (the rule left out)."""
+    found: list[list[list[str]]] = []
+    current: list[list[str]] = []
+    for line in [*text.splitlines(), ""]:
+        if line.startswith("|"):
+            if not line.startswith("|---"):
+                current.append([cell.strip() for cell in line.strip().strip("|").split(" | ")])
+        elif current:
+            found.append(current)
+            current = []
+    return found
+
+
+def estimated_width(table: list[list[str]]) -> int:
+    """The narrowest ``table`` can be, in characters (:func:`column_width` of each column)."""
+    return sum(column_width(column) for column in zip(*table, strict=True))
+
+
+def cells_by_place(text: str) -> dict[tuple[str, str, str, int], str]:
+    """Every body cell of the tables of ``text`` by the table's kind (its first header), its
+    row's label, its column's header and how many tables of that kind and place came
+    before (a block's tables in order): what a layout change must keep, the runs of a row
+    repeated beside each part of a split table counted once."""
+    found: dict[tuple[str, str, str, int], str] = {}
+    for table in tables_in(text):
+        head, *rows = table
+        for row in rows:
+            for name, cell in zip(head[1:], row[1:], strict=True):
+                if name == "runs" and (head[0], row[0], name, 0) in found:
+                    continue
+                k = 0
+                while (head[0], row[0], name, k) in found:
+                    k += 1
+                found[(head[0], row[0], name, k)] = cell
+    return found
+
+
+def wide_results(seeds: int = 6) -> pd.DataFrame:
+    """Three long-named optimisers, every headline metric varying over the seeds."""
+    rng = np.random.default_rng(3)
+    rows = []
+    for k, optimizer in enumerate(("modified-bso-no-chaos-replacement-tuned-loop", "de", "pso")):
+        for seed in range(seeds):
+            row = {
+                "optimizer": optimizer,
+                "trigger": True,
+                "budget": "default",
+                "scenario": "paper",
+                "seed": seed,
+            }
+            for j, metric in enumerate(headline_metrics()):
+                row[metric] = (1 + k + rng.uniform(0, 0.5)) * 10.0 ** (j % 5 - 2)
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def test_a_word_is_what_a_browser_cannot_break():
+    # a space or a hyphen between letters breaks a line; a number keeps its exponent's sign
+    assert column_width(["modified-bso-tuned"]) == len("modified-") + COLUMN_PADDING
+    assert column_width(["1.2e-05 (8)", "p"]) == len("1.2e-05") + COLUMN_PADDING
+    assert column_width([]) == COLUMN_PADDING
+
+
+def test_columns_split_into_as_few_balanced_groups_as_fit():
+    widths = [9, 10, 10, 10, 11, 10, 12, 9, 9, 13]
+    groups = split_columns(widths, 76)
+    # in order, each column once, every group within the room, and not a full group and a stub
+    assert [k for group in groups for k in group] == list(range(len(widths)))
+    assert groups == [[0, 1, 2, 3, 4], [5, 6, 7, 8, 9]]
+    assert split_columns(widths, 200) == [list(range(len(widths)))]
+    assert split_columns([100, 3, 4], 20) == [[0], [1, 2]]  # too wide: a table of its own
+    assert split_columns([], 20) == []
+    grid = Grid(["name", "n", "a", "b"], [["x-y", "3", "1 [0, 2]", "4"]], lead=2)
+    assert [part.head for part in fitted(grid)] == [["name", "n", "a", "b"]]
+    assert grid.lines()[1] == "|---|---:|---:|---:|"
+
+
+def test_a_block_wider_than_the_page_is_split_into_tables_of_the_same_rows(monkeypatch):
+    results = wide_results()
+    report = analyse(results)
+    text = to_markdown(report, results)
+    tables = tables_in(text)
+    assert all(estimated_width(table) <= TABLE_WIDTH for table in tables)
+    values = [t for t in tables if t[0][:2] == ["optimizer", "runs"]]
+    assert len(values) > 1  # the headline metrics do not fit one table
+    # together they show every headline metric once, in its declared place, for every row
+    shown = [name.rsplit(" (", 1)[0] for table in values for name in table[0][2:]]
+    assert shown == [metric_column(m).name for m in headline_metrics()]
+    assert all([row[:2] for row in t[1:]] == [row[:2] for row in values[0][1:]] for t in values)
+    # the ranks and the tests of each part have its columns
+    for table in tables:
+        if table[0][1] != "runs":
+            assert any(table[0][1:] == v[0][2:] for v in values)
+    # the very same cells as in one table as wide as it needs
+    monkeypatch.setattr(cells, "TABLE_WIDTH", 10_000)
+    whole = to_markdown(report, results)
+    assert len([t for t in tables_in(whole) if t[0][:2] == ["optimizer", "runs"]]) == 1
+    assert cells_by_place(text) == cells_by_place(whole)
 
 
 @pytest.fixture(scope="module")
@@ -98,18 +211,6 @@ def test_report_prints_and_writes_tables_and_figures(results, capsys, tmp_path):
         assert (figures / name).stat().st_size > 10_000
     drawn = {p.stem.removeprefix("distribution_") for p in figures.glob("distribution_*.png")}
     assert drawn == set(headline_metrics())
-    # the terminal shows the headline metrics of each block as columns, in their declared
-    # places, those constant over the block's runs named on a line instead
-    first_block = printed.split("## trigger on", 1)[1].split("\n## ", 1)[0]
-    header = next(line for line in first_block.splitlines() if line.startswith("| optimizer |"))
-    shown = [cell.strip() for cell in header.strip("|").split("|")[2:]]
-    constant = next((ln for ln in first_block.splitlines() if ln.startswith("Constant")), "")
-    expected = [
-        metric_column(m).header.rsplit(" (", 1)[0]
-        for m in headline_metrics()
-        if f"{metric_column(m).name} = " not in constant
-    ]
-    assert [cell.rsplit(" (", 1)[0] for cell in shown] == expected
     # a results page of the folder: the commands, the date and every table marked
     page = write_results_page(results, tmp_path / "page.md", folder)
     text = page.read_text()
@@ -126,6 +227,27 @@ def test_report_prints_and_writes_tables_and_figures(results, capsys, tmp_path):
     assert again.index(FINDINGS_END) < again.index("## Headline metrics")
     assert again.replace(f"{findings}\n\n", "") == text
     assert not list(tmp_path.glob(".*.partial"))
+
+
+@pytest.mark.slow
+def test_the_headline_shows_each_metric_once_in_tables_that_fit_the_page(results):
+    runs = load_results(results)
+    report = analyse(runs, baseline="no-modifications")
+    printed = to_markdown(report, runs, metrics=list(headline_metrics()))
+    # the headline metrics of each block as columns, in their declared places, in tables of
+    # the same rows that each fit the page; those constant over the block's runs on a line
+    assert all(estimated_width(table) <= TABLE_WIDTH for table in tables_in(printed))
+    first_block = printed.split("## trigger on", 1)[1].split("\n## ", 1)[0]
+    values = [t for t in tables_in(first_block) if t[0][:2] == ["optimizer", "runs"]]
+    shown = [name.rsplit(" (", 1)[0] for table in values for name in table[0][2:]]
+    constant = next((ln for ln in first_block.splitlines() if ln.startswith("Constant")), "")
+    expected = [
+        metric_column(m).name
+        for m in headline_metrics()
+        if f"{metric_column(m).name} = " not in constant
+    ]
+    assert shown == expected
+    assert all([row[0] for row in t[1:]] == [row[0] for row in values[0][1:]] for t in values)
 
 
 def test_the_metrics_declare_how_they_are_shown():

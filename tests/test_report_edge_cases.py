@@ -64,11 +64,13 @@ def test_a_metric_no_run_of_a_pair_has_shows_as_missing(tmp_path):
     pairs = pd.read_csv(out / "variant_pairs.csv").set_index("metric")
     assert pairs.loc["settling_time_s", "n_pairs"] == 0
     assert pd.isna(pairs.loc["settling_time_s", "p"])
-    (row,) = [
+    # the pair's row in every table its metrics are split into
+    rows = [
         line for line in (out / "variant_pairs.md").read_text().splitlines()
         if line.startswith("| pso-warm | pso | 3 |")
     ]  # fmt: skip
-    assert "– (n 0) vs – (n 0), –, A12 –" in row
+    assert len(rows) >= 1
+    assert sum(row.count("– (n 0) vs – (n 0), –, A12 –") for row in rows) == 1
 
 
 def test_a_tuned_pair_scored_only_off_its_tuning_budget_gets_a_line_not_a_rank_change(tmp_path):

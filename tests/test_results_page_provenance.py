@@ -193,3 +193,23 @@ def test_report_page_of_an_intact_manifest_names_its_provenance(stored, tmp_path
     provenance = suite_provenance(out, load_results(out))
     assert provenance.name == recorded["suite"]["name"]
     assert len(provenance.commands) == 1 and f"`{provenance.commands[0]}`" in text
+
+
+def test_a_sweep_command_names_its_folder_as_the_page_command_does(tmp_path, monkeypatch):
+    # the sweep recorded an absolute --out; the page's own command names the same folder
+    # through a link, relative to where both are run
+    from formation_bench.analysis.results_page import _shown_command
+
+    stored = tmp_path / "elsewhere" / "swept"
+    stored.mkdir(parents=True)
+    (tmp_path / "results").symlink_to(tmp_path / "elsewhere")
+    monkeypatch.chdir(tmp_path)
+    recorded = f"/opt/venv/bin/formation-bench sweep paper --out {stored} --jobs 2"
+    assert _shown_command(recorded, Path("results/swept")) == (
+        "formation-bench sweep paper --out results/swept --jobs 2"
+    )
+    # another folder, or one not on this machine, is shown as recorded
+    other = f"formation-bench sweep paper --out {tmp_path / 'elsewhere'} --jobs 2"
+    assert _shown_command(other, Path("results/swept")) == other
+    gone = "formation-bench sweep paper --out /no/such/folder"
+    assert _shown_command(gone, Path("results/swept")) == gone

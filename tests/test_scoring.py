@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from formation_bench.analysis import score_report
-from formation_bench.analysis.cells import metric_column, share_cell
+from formation_bench.analysis.cells import TABLE_WIDTH, column_width, metric_column, share_cell
 from formation_bench.analysis.scoring import (
     SUCCESS_TARGETS,
     TARGETS,
@@ -22,6 +22,31 @@ from formation_bench.analysis.scoring import (
     success_rate,
 )
 from formation_bench.experiments.score import SCORE_FORMAT, target_column
+from perf.page_numbers import markdown_tables
+
+# --- reading the Markdown tables of a report --------------------------------------------------
+
+
+def table_widths(markdown: str) -> list[int]:
+    """The narrowest each table of ``markdown`` can be, in the characters of
+    :func:`~formation_bench.analysis.cells.column_width`."""
+    return [
+        sum(column_width(column) for column in zip(t.header, *t.rows, strict=True))
+        for t in markdown_tables(markdown)
+    ]
+
+
+def joined_rows(markdown: str, lead: list[str]) -> dict[tuple[str, ...], list[str]]:
+    """The rows of the tables of ``markdown`` whose first headers are ``lead`` (a table split
+    into parts of the same rows), each row's cells after the lead joined over the parts in
+    order, by the row's lead cells."""
+    rows: dict[tuple[str, ...], list[str]] = {}
+    for table in markdown_tables(markdown):
+        if table.header[: len(lead)] == lead:
+            for row in table.rows:
+                rows.setdefault(tuple(row[: len(lead)]), []).extend(row[len(lead) :])
+    return rows
+
 
 # --- the gaps and the statistics of trials ----------------------------------------------------
 
@@ -350,7 +375,10 @@ def test_a_share_that_would_print_as_100_or_0_percent_prints_as_a_count():
         score_report.paired_table(scores),
         library="v2 (split test)",
     )
-    (line,) = [row for row in markdown.splitlines() if row.startswith("| 1 | A |")]
+    # the leaderboard may be split into tables of the same rows: its row joined over them
+    (line,) = [cells for lead, cells in joined_rows(markdown, ["rank", "optimizer"]).items()
+               if lead == ("1", "A")]  # fmt: skip
+    line = "| " + " | ".join(line) + " |"
     assert "| 200/201 | 200/201 | 1/201 |" in line
     assert "100%" not in line and "| 0%" not in line
     (line,) = [row for row in markdown.splitlines() if row.startswith("| A | 1 | 1 |")]
@@ -452,6 +480,81 @@ def test_rank_change_ranks_every_family_at_default_then_at_tuned_at_the_tuning_b
     assert len(section) == 2 and "ranked by its median normalised gap" in section[1]
     assert f"| pso | 2 | 1 | +1 | {0.45 + 5.5 * 0.0121:.3g} [" in section[1]
     assert section[1].index("| family |") < section[1].index("## budget")
+
+
+# --- the tables fit the documentation's content column ----------------------------------------
+
+
+def test_a_wide_table_is_split_into_tables_of_the_same_rows_each_within_the_room():
+    names = score_report.Column("name", ["a-long-optimizer-name", "b"], text=True)
+    pair = [score_report.Column("low", ["1", "2"]), score_report.Column("high", ["3", "4"])]
+    wide = score_report.Column("a header with a long word: incomprehensibilities", ["5", "6"])
+    room = names.width + 16
+    lines = score_report.fitted_table([names], [pair, [wide]], room=room)
+    markdown = "\n".join(lines)
+    # the pair fits beside the name, the wide column does not (it is a table of its own,
+    # wider than the room, rather than cut)
+    assert [t.header for t in markdown_tables(markdown)] == [
+        ["name", "low", "high"],
+        ["name", "a header with a long word: incomprehensibilities"],
+    ]
+    assert table_widths(markdown)[0] <= room < table_widths(markdown)[1]
+    assert joined_rows(markdown, ["name"]) == {
+        ("a-long-optimizer-name",): ["1", "3", "5"],
+        ("b",): ["2", "4", "6"],
+    }
+    assert "|---|---:|---:|" in lines  # the names left-aligned, the numbers right-aligned
+    # a section wider than the room beside the lead is split column by column
+    split = score_report.fitted_table([names], [[*pair, wide]], room=room)
+    assert [t.header[1:] for t in markdown_tables("\n".join(split))] == [
+        ["low", "high"],
+        ["a header with a long word: incomprehensibilities"],
+    ]
+    # everything in one table when it fits
+    one = score_report.fitted_table([names], [pair, [wide]], room=TABLE_WIDTH)
+    assert len(markdown_tables("\n".join(one))) == 1 and one[-1] == ""
+
+
+def test_every_table_of_the_leaderboard_fits_the_page_and_keeps_every_cell_of_its_rows():
+    scores = tuned_scores()
+    summary = score_report.summary_table(scores)
+    at = summary[summary["budget"] == AT_1200]
+    paired = score_report.paired_table(scores)
+    markdown = score_report.to_markdown(
+        at,
+        score_report.degenerate_table(scores),
+        score_report.phase_table(scores),
+        paired[paired["budget"] == AT_1200],
+        library="v2 (split test)",
+        rank_change=score_report.rank_change_table(
+            scores, summary, {"pso-tuned": 1200, "modified-bso-tuned": 1200}
+        ),
+    )
+    widths = table_widths(markdown)
+    assert len(widths) > 5 and max(widths) <= TABLE_WIDTH
+    # the leaderboard: split, rank and name in every part, every cell of a row once
+    leaderboard = [t for t in markdown_tables(markdown) if t.header[:2] == ["rank", "optimizer"]]
+    assert len(leaderboard) == 2
+    assert leaderboard[0].rows[0][:2] == leaderboard[1].rows[0][:2]
+    rows = joined_rows(markdown, ["rank", "optimizer"])
+    assert len(rows) == len(at) and {len(cells) for cells in rows.values()} == {10}
+    r = at.set_index("optimizer").loc["pso"]
+    g = score_report._g
+    assert rows[(f"{r['rank']}", "pso")] == [
+        f"{r['instances']}",
+        f"{r['trials']}",
+        f"{g(r['norm_gap_median'])} [{g(r['norm_gap_ci_low'])}, {g(r['norm_gap_ci_high'])}]",
+        f"{g(r['gap_median'])} [{g(r['gap_ci_low'])}, {g(r['gap_ci_high'])}]",
+        g(r["nfev_median"], ".0f"),
+        *(score_report._share(r[score_report.success_column(t)], 12) for t in SUCCESS_TARGETS),
+        g(1e3 * r["solve_time_median_s"], ".2f"),
+        g(1e3 * r["solve_time_sgm_s"], ".1f"),
+    ]
+    # the paired comparisons: every comparison's cells once, named by its kind, x and y
+    compared = joined_rows(markdown, ["comparison", "x", "y"])
+    assert len(compared) == len(paired[paired["budget"] == AT_1200])
+    assert {len(cells) for cells in compared.values()} == {8}
+    assert compared[("against modified-bso", "pso", "modified-bso")][-1].startswith("favours pso")
 
 
 def test_tuned_pairs_join_the_paired_table_as_their_own_kind():

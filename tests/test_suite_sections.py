@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from formation_bench.analysis import stats
+from formation_bench.analysis import cells, stats
 from formation_bench.analysis import suite_sections as sections
 from formation_bench.cli.main import main
 from formation_bench.experiments.suite import parse_suite
@@ -210,6 +210,56 @@ def test_swarm_one_table_per_cell_with_metric_columns_and_an_overall_ranking(fiv
     assert "smallest two-sided Wilcoxon p" not in swarm.markdown
     ring = _table_lines(swarm.markdown, "### N = 5, ring graph against the complete graph")
     assert all(_cells(line)[1].endswith("A12 0.00*") for line in ring[2:])
+
+
+def _tables(text: str) -> list[list[list[str]]]:
+    """The Markdown tables of ``text``, each as its rows of cells (the rule left out)."""
+    found, current = [], []
+    for line in [*text.splitlines(), ""]:
+        if line.startswith("|"):
+            if not line.startswith("|---"):
+                current.append(_cells(line))
+        elif current:
+            found.append(current)
+            current = []
+    return found
+
+
+def _by_place(text: str) -> dict[tuple[tuple[str, ...], str, int], str]:
+    """Every metric cell of the tables of ``text`` by its row (the cells up to the optimiser),
+    its column's header and how many such cells came before: what a split keeps."""
+    found: dict[tuple[tuple[str, ...], str, int], str] = {}
+    for head, *rows in _tables(text):
+        lead = head.index("optimizer") + 1
+        for row in rows:
+            for name, cell in zip(head[lead:], row[lead:], strict=True):
+                k = sum(1 for key in found if key[:2] == (tuple(row[:lead]), name))
+                found[(tuple(row[:lead]), name, k)] = cell
+    return found
+
+
+def test_every_table_fits_the_page_and_a_narrower_page_splits_it(five, monkeypatch):
+    def width(table: list[list[str]]) -> int:
+        return sum(cells.column_width(column) for column in zip(*table, strict=True))
+
+    found, runs = five
+    texts = {name: section.markdown for name, section in found.items()}
+    assert all(width(t) <= cells.TABLE_WIDTH for text in texts.values() for t in _tables(text))
+    # on a page too narrow for them, the metrics continue in tables of the same rows, each
+    # within the width where a column allows, every cell as it was
+    monkeypatch.setattr(cells, "TABLE_WIDTH", 40)
+    narrow = by_name(sections.sections(runs))
+    for name, section in narrow.items():
+        tables = _tables(section.markdown)
+        assert len(tables) > len(_tables(texts[name]))
+        for table in tables:
+            lead = table[0].index("optimizer") + 1
+            assert len(table[0]) == lead + 1 or width(table) <= 40
+        assert _by_place(section.markdown) == _by_place(texts[name])
+    block = narrow["swarm"].markdown.split("### N = 5, ring graph against the complete graph")[1]
+    values = _tables(block.split("\n### ", 1)[0].split("Optimiser ranks", 1)[0])
+    assert len(values) > 1
+    assert all([row[0] for row in t[1:]] == ["modified-bso", "de", "pso"] for t in values)
 
 
 def test_robustness_compares_every_level_with_the_nominal_run(ten):

@@ -7,7 +7,9 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from test_scoring import joined_rows, table_widths
 
+from formation_bench.analysis.cells import TABLE_WIDTH
 from formation_bench.analysis.tuning_report import (
     FLAT_TRIALS,
     flattening_sentence,
@@ -18,6 +20,7 @@ from formation_bench.analysis.tuning_report import (
     variants_table,
 )
 from formation_bench.cli.main import main
+from perf.page_numbers import markdown_tables
 
 
 def tuned_file(
@@ -97,11 +100,6 @@ def test_the_flattening_point_and_the_table_by_hand(tmp_path):
     assert table.loc["de-tuned-loop", "objective"] == "loop"
     assert table.loc["pso-tuned", "tuned_value"] == 0.4985
     markdown = to_markdown(variants)
-    assert (
-        "| pso-tuned | pso | solve | median normalised gap | 1200 | 6 | 2 | 7 | 1 | 0.4985 |"
-        in markdown
-    )
-    assert "| de-tuned-loop | de | loop | median steady_state_cost | 1200 | 4 |" in markdown
     assert "Total tuning wall time: 60.7 min (3640 s) over 2 variants." in markdown
     assert "de-tuned-loop 4 of 4; pso-tuned 3 of 6." in markdown
     assert "The largest: 4 trials (de-tuned-loop)." in markdown
@@ -112,6 +110,23 @@ def test_the_flattening_point_and_the_table_by_hand(tmp_path):
         in markdown
     )
     assert "suite comparison, seeds 1000, 1001, 1002" in markdown
+
+
+def test_the_table_of_the_variants_fits_the_page_in_tables_of_the_same_rows(tmp_path):
+    markdown = to_markdown(read_folder(tuning_folder(tmp_path)))
+    tables = [t for t in markdown_tables(markdown) if t.header[0] == "variant"]
+    assert len(tables) == 2 and max(table_widths(markdown)) <= TABLE_WIDTH
+    # every row in every part, named by its variant, every cell once over the parts
+    assert [[row[0] for row in t.rows] for t in tables] == [["de-tuned-loop", "pso-tuned"]] * 2
+    rows = joined_rows(markdown, ["variant"])
+    assert rows[("pso-tuned",)] == [
+        "pso", "solve", "median normalised gap", "1200", "6", "2", "7", "1", "0.4985",
+        "inertia=0.52, boundary=clip", "40.0 s",
+    ]  # fmt: skip
+    assert rows[("de-tuned-loop",)][:5] == ["de", "loop", "median steady_state_cost", "1200", "4"]
+    # what each tuning was, then what it found
+    assert tables[0].header[1:5] == ["base", "objective", "metric", "budget"]
+    assert "tuned settings" in tables[1].header
 
 
 def test_a_curve_has_flattened_after_that_many_trials_without_a_gain(tmp_path):
@@ -149,7 +164,8 @@ def test_the_tuning_page_and_its_figure_beside_it(tmp_path, capsys):
     assert image.read_bytes() == (report / "figures" / "tuning_best_so_far.png").read_bytes()
     text = page.read_text()
     assert text.startswith("# Results: tuning (2026-11-28)")
-    assert "Tuned variants, made by the commands below" in text
+    assert "Tuned variants, made by the commands listed at the end of this page" in text
+    assert "\n## How this page was made\n\n```text\nformation-bench tune " in text
     assert "formation-bench tune --optimizer pso --trials 6" in text
     assert "![best value found so far / default value, against the trials]" in text
     assert "(../images/tuning_best_so_far.png)" in text

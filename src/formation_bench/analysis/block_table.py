@@ -3,7 +3,9 @@
 A *block* is one comparison the report makes (:mod:`~formation_bench.analysis.comparison`):
 the levels of the compared factor (the optimisers, say) at one setting of the others. Its
 tables share their rows and columns, each column a metric headed by its name and unit
-(:func:`~formation_bench.analysis.cells.metric_column`):
+(:func:`~formation_bench.analysis.cells.metric_column`); where the metrics do not fit the width
+of one table (:data:`~formation_bench.analysis.cells.TABLE_WIDTH`), they are split into groups
+in their order, and each group gets all three tables:
 
 - the values: median [bootstrap 95 % CI of the median] over the seeds, with the number of
   runs of each configuration;
@@ -19,16 +21,14 @@ under the values names it and its value.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import pandas as pd
 
-from formation_bench.analysis.cells import MetricColumn, metric_column, p_cell
+from formation_bench.analysis.cells import Grid, MetricColumn, fit_columns, metric_column, p_cell
 from formation_bench.analysis.comparison import Report
 from formation_bench.analysis.stats import SIGNIFICANCE
 from formation_bench.mpc.metrics import Better, Per, metric_of
-
-MAX_COLUMNS = 8
-"""Metric columns of one table; more metrics continue in a further table of the same rows."""
 
 VALUES_LEGEND = (
     "Median [bootstrap 95 % CI of the median] over the seeds; runs: runs of the configuration "
@@ -96,20 +96,6 @@ def constant_line(constant: dict[str, float]) -> str:
     return "Constant in every run of this block (no column): " + ", ".join(parts) + "."
 
 
-def _row(cells: list[str]) -> str:
-    return "| " + " | ".join(cells) + " |"
-
-
-def _chunks(metrics: list[str], size: int) -> list[list[str]]:
-    return [metrics[k : k + size] for k in range(0, len(metrics), size)]
-
-
-def _grid(head: list[str], rows: list[list[str]]) -> list[str]:
-    """A table whose first column names the row and the others hold numbers (right-aligned)."""
-    rule = "|---|" + "---:|" * (len(head) - 1)
-    return [_row(head), rule, *(_row(cells) for cells in rows)]
-
-
 def _summary_cell(column: MetricColumn, summary: pd.DataFrame, level: str, runs: int) -> str:
     """``median [CI]`` of ``level``, with ``(n k)`` when fewer of its ``runs`` have a value."""
     if level not in summary.index or not summary.loc[level, "n"]:
@@ -124,13 +110,33 @@ def _summary_cell(column: MetricColumn, summary: pd.DataFrame, level: str, runs:
     return text
 
 
-def _values_table(
+@dataclass(frozen=True)
+class Verdicts:
+    """A table of verdicts on the metrics (ranks, tests), what is said above it, and which of
+    its columns have a verdict: a part of a split table with none is left out."""
+
+    grid: Grid
+    legend: list[str]
+    """The lines above the first part."""
+    short: list[str]
+    """The lines above a further part."""
+    filled: list[bool]
+
+    def lines(self, group: list[int], first: bool) -> list[str]:
+        """The part of the table with the metric columns at ``group``, none if it has no
+        verdict."""
+        if not any(self.filled[k] for k in group):
+            return []
+        return [*(self.legend if first else self.short), *self.grid.select(group).lines(), ""]
+
+
+def _values_grid(
     tables: BlockTables,
     block_key: dict[str, str],
     block: pd.DataFrame,
     levels: list[str],
     columns: list[MetricColumn],
-) -> list[str]:
+) -> Grid:
     factor = tables.report.factor
     runs = block.groupby(factor, sort=False).size()
     summaries = {
@@ -147,16 +153,12 @@ def _values_table(
         ]
         for level in levels
     ]
-    return _grid([factor, "runs", *(c.header for c in columns)], rows)
+    return Grid([factor, "runs", *(c.header for c in columns)], rows, lead=2)
 
 
-def _ranks_table(
-    tables: BlockTables,
-    block_key: dict[str, str],
-    levels: list[str],
-    columns: list[MetricColumn],
-    with_legend: bool,
-) -> list[str]:
+def _ranks(
+    tables: BlockTables, block_key: dict[str, str], levels: list[str], columns: list[MetricColumn]
+) -> Verdicts:
     factor = tables.report.factor
     ranks = {}
     for c in columns:
@@ -164,8 +166,6 @@ def _ranks_table(
         ranks[c.column] = (
             pd.Series(dtype=float) if selected.empty else selected.set_index(factor)["average_rank"]
         )
-    if all(r.empty for r in ranks.values()):
-        return []
     higher = [c.name for c in columns if (i := metric_of(c.column)) and i.better is Better.HIGHER]
     note = f" ({', '.join(higher)}: higher is better, so rank 1 is the worst)" if higher else ""
     legend = (
@@ -186,20 +186,17 @@ def _ranks_table(
 
     rows = [[level, *(rank_cell(level, c) for c in columns)] for level in levels]
     rows.append(["Friedman p", *(friedman_cell(c) for c in columns)])
-    return [
-        *([legend, ""] if with_legend else []),
-        *_grid([factor, *(c.header for c in columns)], rows),
-    ]
+    grid = Grid([factor, *(c.header for c in columns)], rows)
+    return Verdicts(grid, [legend, ""], [], [not ranks[c.column].empty for c in columns])
 
 
-def _tests_table(
+def _tests(
     tables: BlockTables,
     block_key: dict[str, str],
     levels: list[str],
     columns: list[MetricColumn],
     base: str,
-    with_legend: bool,
-) -> list[str]:
+) -> Verdicts:
     factor = tables.report.factor
     tests = {}
     for column in columns:
@@ -207,8 +204,6 @@ def _tests_table(
         if not rows.empty:
             rows = rows[rows["baseline"] == base]
         tests[column.column] = rows.set_index(factor) if not rows.empty else rows
-    if all(t.empty for t in tests.values()):
-        return []
     legend = (
         f"Against {base}, paired by seed: Wilcoxon signed-rank p (two-sided, Holm-adjusted "
         f"over the levels compared with {base} on that metric; * p < {SIGNIFICANCE:g}) and "
@@ -226,8 +221,9 @@ def _tests_table(
         return f"{p_cell(test['p_holm'])}{mark}, A12 {test['a12']:.2f}"
 
     rows = [[level, *(test_cell(level, c) for c in columns)] for level in levels]
-    head = [legend, ""] if with_legend else [f"Against {base}: p (Holm), A12.", ""]
-    return [*head, *_grid([factor, *(c.header for c in columns)], rows)]
+    grid = Grid([factor, *(c.header for c in columns)], rows)
+    short = [f"Against {base}: p (Holm), A12.", ""]
+    return Verdicts(grid, [legend, ""], short, [not tests[c.column].empty for c in columns])
 
 
 def block_lines(
@@ -236,36 +232,31 @@ def block_lines(
     block: pd.DataFrame,
     metrics: list[str],
     *,
-    max_columns: int = MAX_COLUMNS,
     constant_note: bool = True,
 ) -> list[str]:
-    """The Markdown of one block: per group of at most ``max_columns`` metrics that vary in
-    the block, the values, the ranks and the tests against each baseline; the metrics that do
-    not vary on one line under the first values table."""
+    """The Markdown of one block: per group of the metrics that vary in the block, as many
+    as fit one table (:func:`~formation_bench.analysis.cells.fit_columns`), the values, the
+    ranks and the tests against each baseline; the metrics that do not vary on one line
+    under the first values table."""
     report = tables.report
     levels = list(dict.fromkeys(block[report.factor]))
     metrics = [m for m in metrics if not absent(block, m)]
     constant = constant_metrics(block, metrics)
-    varying = [m for m in metrics if m not in constant]
+    columns = [metric_column(m, block[m]) for m in metrics if m not in constant]
+    note = [constant_line(constant), ""] if constant and constant_note else []
+    if not columns:
+        return note
+    values = _values_grid(tables, block_key, block, levels, columns)
+    verdicts = [
+        _ranks(tables, block_key, levels, columns),
+        *(_tests(tables, block_key, levels, columns, base) for base in report.baselines),
+    ]
     lines: list[str] = []
-    note = constant_line(constant) if constant_note else ""
-    for k, chunk in enumerate(_chunks(varying, max_columns) or [[]]):
-        columns = [metric_column(m, block[m]) for m in chunk]
+    groups = fit_columns([values, *(v.grid for v in verdicts)])
+    for k, group in enumerate(groups):
         first = k == 0
-        if columns:
-            lines += [
-                *([VALUES_LEGEND, ""] if first else []),
-                *_values_table(tables, block_key, block, levels, columns),
-                "",
-            ]
-        if note:
-            lines += [note, ""]
-            note = ""
-        if not columns:
-            continue
-        ranks = _ranks_table(tables, block_key, levels, columns, first)
-        lines += [*ranks, ""] if ranks else []
-        for base in report.baselines:
-            tests = _tests_table(tables, block_key, levels, columns, base, first)
-            lines += [*tests, ""] if tests else []
+        lines += [*([VALUES_LEGEND, ""] if first else []), *values.select(group).lines(), ""]
+        lines += note if first else []
+        for verdict in verdicts:
+            lines += verdict.lines(group, first)
     return lines

@@ -5,7 +5,9 @@ A metric's name, unit and label are declared once, on :class:`~formation_bench.m
 Metrics`; :data:`SHOWN_UNITS` is the one mapping from a declared unit to the unit a table
 shows (counts as ``count``, fractions as ``%``), and :func:`metric_column` picks ms or s for
 a time from the values it shows. :func:`share_cell` prints every share (success rates, the
-share of runs or problems with a property, a fraction metric in %).
+share of runs or problems with a property, a fraction metric in %). :class:`Grid` holds a table
+before it is printed, and :func:`fit_columns` splits its metric columns into tables of the same
+rows that each fit the documentation's content column (:data:`TABLE_WIDTH`).
 """
 
 from __future__ import annotations
@@ -142,3 +144,114 @@ def metric_column(column: str, values: Iterable[float] = ()) -> MetricColumn:
         if finite.size and 0 < np.abs(finite).max() < 1.0:
             shown, scale = "ms", 1000.0
     return MetricColumn(column, metric_name(column), shown, scale)
+
+
+# --- fitting a table into the documentation's content column ---------------------------------
+
+TABLE_WIDTH = 96
+"""The widest table the report writes, in characters of :func:`column_width`: the results
+pages are read in the documentation site's content column, 833 px at a 1280 px window
+(docs/_static/site.css), where a table cannot shrink below the sum of its columns' longest
+unbreakable words. Measured there, one character of this estimate takes at most 8.1 px
+(wide glyphs, bold headers, the cells' padding and borders), so 96 leaves a margin of about
+7 %. A table of more metrics continues in further tables of the same rows."""
+COLUMN_PADDING = 2
+"""What a column takes beside its longest word, in characters: the cell's padding and
+borders."""
+
+# a browser breaks a line at a space, or after a hyphen between letters (``steady-state``,
+# ``modified-bso``), never inside a number (``1.2e-05``)
+_WORD_BREAK = re.compile(r"\s+|(?<=[^\W\d_]-)(?=[^\W\d_])")
+
+
+def column_width(texts: Iterable[str]) -> int:
+    """The narrowest a column holding ``texts`` (its header and cells) can be, in
+    characters: its longest unbreakable word and its padding."""
+    words = (word for text in texts for word in _WORD_BREAK.split(text))
+    return max((len(word) for word in words), default=0) + COLUMN_PADDING
+
+
+def split_columns(widths: list[int], room: int) -> list[list[int]]:
+    """The indices of columns of ``widths`` in consecutive groups, each within ``room``
+    characters where it can be (a column wider than that is a group of its own): as few
+    groups as a greedy fill needs, the widest of them as narrow as can be, so that a split
+    table is not a full table and a stub."""
+    if not widths:
+        return []
+    fewest = len(_pack(widths, room))
+    smallest = max(-(-sum(widths) // fewest), min(max(widths), room))
+    for capacity in range(smallest, room + 1):
+        groups = _pack(widths, capacity)
+        if len(groups) <= fewest:
+            return groups
+    return _pack(widths, room)
+
+
+def _pack(widths: list[int], capacity: int) -> list[list[int]]:
+    """Columns in order, a new group whenever the next one would pass ``capacity``."""
+    groups: list[list[int]] = []
+    used = capacity + 1  # the first column opens a group
+    for index, width in enumerate(widths):
+        if used + width > capacity:
+            groups.append([])
+            used = 0
+        groups[-1].append(index)
+        used += width
+    return groups
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A Markdown table before it is printed: ``lead`` columns that name the row (repeated in
+    every part of a split table), then the value columns; the first ``left`` columns are
+    left-aligned, the others (numbers) right-aligned."""
+
+    head: list[str]
+    rows: list[list[str]]
+    lead: int = 1
+    left: int = 1
+
+    def widths(self) -> list[int]:
+        """:func:`column_width` of each value column."""
+        columns = zip(self.head, *self.rows, strict=True)
+        return [column_width(texts) for texts in list(columns)[self.lead :]]
+
+    def lead_width(self) -> int:
+        """:func:`column_width` of the lead columns together."""
+        columns = list(zip(self.head, *self.rows, strict=True))[: self.lead]
+        return sum(column_width(texts) for texts in columns)
+
+    def select(self, indices: list[int]) -> Grid:
+        """The lead columns and the value columns at ``indices``."""
+        keep = [*range(self.lead), *(self.lead + k for k in indices)]
+        return Grid(
+            [self.head[k] for k in keep],
+            [[row[k] for k in keep] for row in self.rows],
+            self.lead,
+            self.left,
+        )
+
+    def lines(self) -> list[str]:
+        """The table in Markdown."""
+        rule = "|" + "---|" * self.left + "---:|" * (len(self.head) - self.left)
+        return [_markdown_row(self.head), rule, *(_markdown_row(row) for row in self.rows)]
+
+
+def _markdown_row(cells: list[str]) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def fit_columns(grids: Iterable[Grid]) -> list[list[int]]:
+    """The value columns that ``grids`` share (same count, same metrics) in groups whose
+    tables each fit :data:`TABLE_WIDTH` (:func:`split_columns`): a column as wide as the
+    widest of its cells in any of them, beside the widest lead."""
+    grids = list(grids)
+    if not grids:
+        return []
+    widths = [max(column) for column in zip(*(g.widths() for g in grids), strict=True)]
+    return split_columns(widths, TABLE_WIDTH - max(g.lead_width() for g in grids))
+
+
+def fitted(grid: Grid) -> list[Grid]:
+    """``grid`` split into tables that fit :data:`TABLE_WIDTH`, the lead in each."""
+    return [grid.select(group) for group in fit_columns([grid])]

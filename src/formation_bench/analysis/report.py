@@ -60,7 +60,8 @@ def to_markdown(
     report: Report, results: pd.DataFrame, *, metrics: list[str] | None = None, title: str = ""
 ) -> str:
     """The report as Markdown: one section per block, its configurations as rows and its
-    metrics as columns (:mod:`~formation_bench.analysis.block_table`). Without ``metrics``,
+    metrics as columns, split into tables that fit the page (:mod:`~formation_bench.analysis.
+    block_table`). Without ``metrics``,
     every metric: the headline ones first, then the others under "Further metrics"."""
     frame = prepare(results)
     factor = report.factor
@@ -74,7 +75,8 @@ def to_markdown(
         f"{', '.join(levels_of(frame, factor))}. Each block below compares the levels at one "
         "setting of the other factors: one table of values with a column per metric (its unit "
         "in the header), then the Friedman ranks and the paired tests against each baseline "
-        "with the same rows and columns. A metric with one value in every run of a block has "
+        "with the same rows and columns; metrics that do not fit the page's width continue in "
+        "further tables of the same rows. A metric with one value in every run of a block has "
         "no column; the line under the values names it."
     )
     lines.append("")
@@ -84,7 +86,7 @@ def to_markdown(
     for block_values, block in frame.groupby(report.block_factors, sort=False):
         block_key = dict(zip(report.block_factors, block_values, strict=True))
         lines += [f"## {describe_block(block_key, frame) or 'all runs'}", ""]
-        lines += block_lines(tables, block_key, block, headline, max_columns=len(headline) or 1)
+        lines += block_lines(tables, block_key, block, headline)
         if further:
             lines += ["### Further metrics", ""]
             lines += block_lines(tables, block_key, block, further)

@@ -69,12 +69,27 @@ def _span(days: list[str | None]) -> tuple[str, ...]:
     return tuple(dict.fromkeys([known[0], known[-1]])) if known else ()
 
 
-def _shown_command(command: str) -> str:
-    """A recorded command line with the program named ``formation-bench``, not by its path."""
+def _shown_command(command: str, folder: Path | None = None) -> str:
+    """A recorded command line with the program named ``formation-bench``, not by its path,
+    and an absolute ``--out`` that is ``folder`` (the results the page is made from) by another
+    path named as the page's own command names it: a reader runs both from one place, and the
+    machine's paths mean nothing elsewhere."""
     words = shlex.split(command)
     if words and Path(words[0]).name == "formation-bench":
         words[0] = "formation-bench"
+    if folder is not None:
+        for k in range(1, len(words)):
+            if words[k - 1] == "--out" and _same_folder(words[k], folder):
+                words[k] = str(folder)
     return shlex.join(words)
+
+
+def _same_folder(recorded: str, folder: Path) -> bool:
+    """Whether the absolute path ``recorded`` is the folder ``folder`` (links resolved)."""
+    try:
+        return os.path.isabs(recorded) and os.path.samefile(recorded, folder)
+    except OSError:  # gone, or never on this machine
+        return False
 
 
 def suite_provenance(results_dir: Path, results: pd.DataFrame) -> Provenance:
@@ -92,7 +107,11 @@ def suite_provenance(results_dir: Path, results: pd.DataFrame) -> Provenance:
     return Provenance(
         "suite",
         _suite_name(manifest, results),
-        tuple(dict.fromkeys(_shown_command(s["command"]) for s in sessions if "command" in s)),
+        tuple(
+            dict.fromkeys(
+                _shown_command(s["command"], results_dir) for s in sessions if "command" in s
+            )
+        ),
         _span(_run_days(sessions, results)),
         _suite_version(manifest, results),
         _suite_machine(manifest, results),
@@ -419,7 +438,7 @@ def page_text(
     dates = " to ".join(provenance.dates) or "not recorded"
     several = len(provenance.commands) > 1
     made_by = (
-        "the commands below"
+        "the commands listed at the end of this page"
         if several
         else "".join(f"`{c}`" for c in provenance.commands) or "a command not recorded"
     )
@@ -432,12 +451,16 @@ def page_text(
         f"{today.isoformat()}). {made} dated {dates}; formation-bench {provenance.version}; "
         f"machine: {provenance.machine}."
     )
-    if several:
-        intro += "\n\n```\n" + "\n".join(provenance.commands) + "\n```"
-    kept = f"{findings}\n\n" if findings else ""
-    return f"# Results: {title} ({provenance.date})\n\n{intro}\n\n{kept}" + mark_tables(
-        body, command, provenance
+    # many commands (one per optimiser scored) would push the findings below the fold
+    commands = (
+        "\n\n## How this page was made\n\n```text\n" + "\n".join(provenance.commands) + "\n```\n"
+        if several
+        else ""
     )
+    kept = f"{findings}\n\n" if findings else ""
+    page = f"# Results: {title} ({provenance.date})\n\n{intro}\n\n{kept}"
+    tables = mark_tables(body, command, provenance)
+    return page + (tables.rstrip("\n") + commands if several else tables)
 
 
 def write_results_page(

@@ -34,6 +34,10 @@ above :data:`FAILURE_GAP`, charged at the slowest solve at the same budget). Bes
 - COCO's expected running time to each target, the Dolan-More performance profile of solve
   time and, with figures, the runtime ECDF.
 
+Every table of ``score.md`` fits the documentation's content column, where the leaderboard
+page is read (:data:`~formation_bench.analysis.cells.TABLE_WIDTH`): a wider one is split into
+tables of the same rows, each repeating the columns that name the row (:func:`fitted_table`).
+
 Files: ``score.md``, ``score_summary.csv``, ``score_degenerate.csv``, ``score_phases.csv``,
 ``score_paired.csv``, ``score_ert.csv``, ``score_profile.csv``, ``score_rank_change.csv``
 and, with figures, ``figures/score_ecdf.png`` and ``figures/score_profile.png``.
@@ -42,13 +46,15 @@ and, with figures, ``figures/score_ecdf.png`` and ``figures/score_profile.png``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from formation_bench.analysis import stats
-from formation_bench.analysis.cells import share_cell
+from formation_bench.analysis.cells import TABLE_WIDTH, column_width, share_cell, split_columns
 from formation_bench.analysis.scoring import (
     SUCCESS_TARGETS,
     TARGET_GAP,
@@ -525,6 +531,64 @@ def ecdf_curves(scores: pd.DataFrame, points: int = 40) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["optimizer", "budget", "evaluations", "share"])
 
 
+# --- fitting a table into the documentation's content column ------------------------------
+
+
+@dataclass(frozen=True)
+class Column:
+    """A column of a Markdown table before it is printed: its header, its cells (one per row)
+    and whether it holds text (left-aligned) rather than numbers (right-aligned)."""
+
+    header: str
+    cells: list[str]
+    text: bool = False
+
+    @property
+    def width(self) -> int:
+        """The narrowest the column can be, in characters (:func:`column_width`)."""
+        return column_width([self.header, *self.cells])
+
+
+Section = list[Column]
+"""Value columns that read together (a median and its CI, the success rates at each target):
+a split table keeps them in one part when they fit one."""
+
+
+def fitted_table(lead: list[Column], sections: list[Section], room: int = TABLE_WIDTH) -> list[str]:
+    """The Markdown of a table of the ``lead`` columns (which name the row) and the value
+    columns of ``sections``, in as many tables of the same rows as it takes for each to fit
+    ``room`` characters (:func:`split_columns`): the lead columns in every one, the sections
+    in order and whole where they fit beside the lead (else column by column). Each table is
+    followed by a blank line."""
+    free = room - sum(column.width for column in lead)
+    units: list[Section] = []
+    for section in sections:
+        fits = sum(column.width for column in section) <= free
+        units += [section] if fits else [[column] for column in section]
+    groups = split_columns([sum(column.width for column in unit) for unit in units], free)
+    lines: list[str] = []
+    for group in groups or [[]]:
+        lines += [*_table_lines([*lead, *(c for k in group for c in units[k])]), ""]
+    return lines
+
+
+def _table_lines(columns: list[Column]) -> list[str]:
+    rule = "|" + "".join("---|" if column.text else "---:|" for column in columns)
+    rows = zip(*(column.cells for column in columns), strict=True)
+    return [_row([column.header for column in columns]), rule, *(_row(list(r)) for r in rows)]
+
+
+def _row(cells: list[str]) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def _column(
+    rows: pd.DataFrame, header: str, cell: Callable[[pd.Series], str], *, text: bool = False
+) -> Column:
+    """The column headed ``header`` of one cell per row of ``rows``, ``cell(row)``."""
+    return Column(header, [cell(row) for _, row in rows.iterrows()], text)
+
+
 # --- the leaderboard --------------------------------------------------------------------------
 
 
@@ -555,7 +619,6 @@ def to_markdown(
     """The rank change of the families with a tuned variant (when ``rank_change`` has rows),
     then the leaderboard per budget, the degenerate stratum, the phases and the paired
     comparisons at that budget."""
-    targets = " | ".join(f"{t:.0e}" for t in SUCCESS_TARGETS[1:])
     lines = [
         f"# Score on the instance library {library}",
         "",
@@ -585,34 +648,60 @@ def to_markdown(
         [*summary["budget"], *degenerate["budget"], *phases["budget"], *paired["budget"]]
     ):
         lines += [f"## budget {budget}", ""]
-        rows = summary[summary["budget"] == budget]
-        if len(rows):
-            lines += [
-                "| rank | optimizer | instances | trials | median normalised gap [95 % CI] "
-                "| median relative gap [95 % CI] | success (normalised gap) "
-                f"{SUCCESS_TARGETS[0]:.0e} | {targets} | median evaluations "
-                "| solve time median (ms) | sgm, failures charged (ms) |",
-                "|" + "---|" * (9 + len(SUCCESS_TARGETS)),
-            ]
-            for _, r in rows.iterrows():
-                success = " | ".join(
-                    _share(r[success_column(t)], r["instances"]) for t in SUCCESS_TARGETS
-                )
-                lines.append(
-                    f"| {r['rank']} | {r['optimizer']} | {r['instances']} | {r['trials']} | "
-                    f"{_g(r['norm_gap_median'])} [{_g(r['norm_gap_ci_low'])}, "
-                    f"{_g(r['norm_gap_ci_high'])}] | {_g(r['gap_median'])} "
-                    f"[{_g(r['gap_ci_low'])}, {_g(r['gap_ci_high'])}] | {success} | "
-                    f"{_g(r['nfev_median'], '.0f')} | {_g(1e3 * r['solve_time_median_s'], '.2f')} "
-                    f"| {_g(1e3 * r['solve_time_sgm_s'], '.1f')} |"
-                )
-            lines.append("")
-        else:
-            lines += ["No non-degenerate instance was solved at this budget.", ""]
+        lines += _summary_section(summary[summary["budget"] == budget])
         lines += _degenerate_section(degenerate[degenerate["budget"] == budget])
         lines += _phase_section(phases[phases["budget"] == budget])
         lines += _paired_section(paired[paired["budget"] == budget])
     return "\n".join(lines)
+
+
+def _with_ci(row: pd.Series, prefix: str) -> str:
+    """``median [ci_low, ci_high]`` of the ``prefix`` columns of ``row``."""
+    return (
+        f"{_g(row[f'{prefix}_median'])} [{_g(row[f'{prefix}_ci_low'])}, "
+        f"{_g(row[f'{prefix}_ci_high'])}]"
+    )
+
+
+def _p_holm(row: pd.Series) -> str:
+    """The Holm-adjusted p of ``row``, starred when significant."""
+    return f"{_p(row['p_holm'])}{' *' if row['significant'] else ''}"
+
+
+def _summary_section(rows: pd.DataFrame) -> list[str]:
+    """The leaderboard at one budget: ranks, counts and gaps, then (where the table does not
+    fit the page in one) the success rates and solve times beside the same rank and name."""
+    if rows.empty:
+        return ["No non-degenerate instance was solved at this budget.", ""]
+
+    def success(target: float) -> Column:
+        # the target alone heads it: the text above defines success at t
+        column = success_column(target)
+        return _column(rows, f"success {target:.0e}", lambda r: _share(r[column], r["instances"]))
+
+    lead = [
+        _column(rows, "rank", lambda r: f"{r['rank']}"),
+        _column(rows, "optimizer", lambda r: f"{r['optimizer']}", text=True),
+    ]
+    sections = [
+        [
+            _column(rows, "instances", lambda r: f"{r['instances']}"),
+            _column(rows, "trials", lambda r: f"{r['trials']}"),
+        ],
+        [
+            _column(rows, "median normalised gap [95 % CI]", lambda r: _with_ci(r, "norm_gap")),
+            _column(rows, "median relative gap [95 % CI]", lambda r: _with_ci(r, "gap")),
+        ],
+        [_column(rows, "median evaluations", lambda r: _g(r["nfev_median"], ".0f"))],
+        [success(target) for target in SUCCESS_TARGETS],
+        [
+            _column(rows, "solve time median (ms)",
+                    lambda r: _g(1e3 * r["solve_time_median_s"], ".2f")),
+            _column(rows, "sgm, failures charged (ms)",
+                    lambda r: _g(1e3 * r["solve_time_sgm_s"], ".1f")),
+        ],
+    ]  # fmt: skip
+    return fitted_table(lead, sections)
 
 
 def _rank_change_section(rows: pd.DataFrame) -> list[str]:
@@ -632,20 +721,27 @@ def _rank_change_section(rows: pd.DataFrame) -> list[str]:
             "the families; A12 = P(tuned > default) of the normalised gap (below 0.5: the "
             f"tuned variant leaves less). {at['optimizers'].iloc[0]} optimisers ranked.",
             "",
-            "| family | default rank | tuned rank | rank change | default median normalised "
-            "gap [95 % CI] | tuned median normalised gap [95 % CI] | pairs | p Holm | A12 "
-            "tuned vs default |",
-            "|---|---|---|---|---|---|---|---|---|",
         ]
-        for _, r in at.iterrows():
-            lines.append(
-                f"| {r['family']} | {r['default_rank']} | {r['tuned_rank']} | "
-                f"{r['rank_change']:+d} | {_g(r['default_median'])} [{_g(r['default_ci_low'])}, "
-                f"{_g(r['default_ci_high'])}] | {_g(r['tuned_median'])} "
-                f"[{_g(r['tuned_ci_low'])}, {_g(r['tuned_ci_high'])}] | {r['pairs']} | "
-                f"{_p(r['p_holm'])}{' *' if r['significant'] else ''} | {_g(r['a12'], '.2f')} |"
-            )
-        lines.append("")
+        sections = [
+            [
+                _column(at, "default rank", lambda r: f"{r['default_rank']}"),
+                _column(at, "tuned rank", lambda r: f"{r['tuned_rank']}"),
+                _column(at, "rank change", lambda r: f"{r['rank_change']:+d}"),
+            ],
+            [
+                _column(at, "default median normalised gap [95 % CI]",
+                        lambda r: _with_ci(r, "default")),
+                _column(at, "tuned median normalised gap [95 % CI]",
+                        lambda r: _with_ci(r, "tuned")),
+            ],
+            [
+                _column(at, "pairs", lambda r: f"{r['pairs']}"),
+                _column(at, "p Holm", _p_holm),
+                _column(at, "A12 tuned vs default", lambda r: _g(r["a12"], ".2f")),
+            ],
+        ]  # fmt: skip
+        lines += fitted_table([_column(at, "family", lambda r: f"{r['family']}", text=True)],
+                              sections)  # fmt: skip
     return lines
 
 
@@ -658,60 +754,77 @@ def _degenerate_section(rows: pd.DataFrame) -> list[str]:
         f"start's cost or better (to {WARM_TOLERANCE:g} relative), and the median |f - J*| "
         "(absolute, in cost units).",
         "",
-        "| optimizer | instances | trials | warm-start cost or better | median abs(f - J*) |",
-        "|---|---|---|---|---|",
     ]
-    for _, r in rows.iterrows():
-        lines.append(
-            f"| {r['optimizer']} | {r['instances']} | {r['trials']} | "
-            f"{_share(r['warm_or_better_share'], r['instances'])} | {_g(r['abs_error_median'])} |"
-        )
-    return [*lines, ""]
+    sections = [
+        [
+            _column(rows, "instances", lambda r: f"{r['instances']}"),
+            _column(rows, "trials", lambda r: f"{r['trials']}"),
+        ],
+        [
+            _column(rows, "warm-start cost or better",
+                    lambda r: _share(r["warm_or_better_share"], r["instances"])),
+            _column(rows, "median abs(f - J*)", lambda r: _g(r["abs_error_median"])),
+        ],
+    ]  # fmt: skip
+    lead = [_column(rows, "optimizer", lambda r: f"{r['optimizer']}", text=True)]
+    return [*lines, *fitted_table(lead, sections)]
 
 
 def _phase_section(rows: pd.DataFrame) -> list[str]:
     if rows.empty:
         return []
-    lines = [
+    optimizers = list(dict.fromkeys(rows["optimizer"]))
+    by_phase = rows.set_index(["optimizer", "phase"])
+
+    def phase_cell(optimizer: str, phase: str) -> str:
+        row = by_phase.loc[(optimizer, phase)]
+        return f"{_g(row['norm_gap_median'])} ({row['instances']})"
+
+    lead = [Column("optimizer", optimizers, text=True)]
+    phases = [Column(phase, [phase_cell(o, phase) for o in optimizers]) for phase in PHASES]
+    return [
         "### Median normalised gap per phase of the loop",
         "",
         "Non-degenerate problems of each phase (their number in brackets).",
         "",
-        "| optimizer | " + " | ".join(PHASES) + " |",
-        "|---|" + "---|" * len(PHASES),
+        *fitted_table(lead, [phases]),
     ]
-    for optimizer, mine in rows.groupby("optimizer", sort=False):
-        cells = []
-        for phase in PHASES:
-            row = mine[mine["phase"] == phase].iloc[0]
-            cells.append(f"{_g(row['norm_gap_median'])} ({row['instances']})")
-        lines.append(f"| {optimizer} | " + " | ".join(cells) + " |")
-    return [*lines, ""]
 
 
 def _paired_section(rows: pd.DataFrame) -> list[str]:
     if rows.empty:
         return []
-    lines = [
+    lead = [
+        _column(rows, "comparison", lambda r: f"{r['comparison']}", text=True),
+        _column(rows, "x", lambda r: f"{r['x']}", text=True),
+        _column(rows, "y", lambda r: f"{r['y']}", text=True),
+    ]
+    sections = [
+        [
+            _column(rows, "pairs", lambda r: f"{r['pairs']}"),
+            _column(rows, "median x", lambda r: _g(r["x_norm_gap_median"])),
+            _column(rows, "median y", lambda r: _g(r["y_norm_gap_median"])),
+        ],
+        [
+            _column(rows, "x lower / higher / tied",
+                    lambda r: f"{r['x_lower']} / {r['x_higher']} / {r['ties']}"),
+        ],
+        [
+            _column(rows, "p", lambda r: _p(r["p"])),
+            _column(rows, "p Holm", _p_holm),
+            _column(rows, "A12", lambda r: _g(r["a12"], ".2f")),
+        ],
+        [_column(rows, "reading", lambda r: f"{r['reading']}", text=True)],
+    ]  # fmt: skip
+    return [
         "### Paired comparisons of the normalised gap",
         "",
         "Paired by problem (each averaged over its trials). Wilcoxon signed-rank, two-sided, "
         "Holm-adjusted within each kind of comparison at this budget; A12 = P(x > y) + "
         "P(x = y) / 2 of the normalised gap (below 0.5: x leaves less).",
         "",
-        "| comparison | x | y | pairs | median x | median y | x lower / higher / tied "
-        "| p | p Holm | A12 | reading |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        *fitted_table(lead, sections),
     ]
-    for _, r in rows.iterrows():
-        lines.append(
-            f"| {r['comparison']} | {r['x']} | {r['y']} | {r['pairs']} | "
-            f"{_g(r['x_norm_gap_median'])} | {_g(r['y_norm_gap_median'])} | "
-            f"{r['x_lower']} / {r['x_higher']} / {r['ties']} | {_p(r['p'])} | "
-            f"{_p(r['p_holm'])}{' *' if r['significant'] else ''} | {_g(r['a12'], '.2f')} | "
-            f"{r['reading']} |"
-        )
-    return [*lines, ""]
 
 
 def _notes(scores: pd.DataFrame) -> list[str]:

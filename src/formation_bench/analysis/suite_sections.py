@@ -11,7 +11,9 @@ claims is refused rather than counted as nominal. A section
 has one table per *block*, one comparison (an (N, graph) cell against the complete graph; a
 disturbance level against the nominal runs; a scenario's penalties on against off): the
 optimisers as rows, the metrics as columns (constant ones on a line), each cell the median
-over the seeds against the reference's median. It carries the report's statistics
+over the seeds against the reference's median; metrics that do not fit the width of one
+table (:data:`~formation_bench.analysis.cells.TABLE_WIDTH`) continue in further tables of the
+same rows. It carries the report's statistics
 (:func:`~formation_bench.analysis.comparison.analyse`):
 
 - every condition against its baseline condition (the complete graph at the same N; the
@@ -42,7 +44,7 @@ import pandas as pd
 
 from formation_bench.analysis import stats
 from formation_bench.analysis.block_table import absent, constant_line, constant_metrics
-from formation_bench.analysis.cells import MetricColumn, metric_column, p_cell
+from formation_bench.analysis.cells import Grid, MetricColumn, fitted, metric_column, p_cell
 from formation_bench.analysis.comparison import analyse, prepare
 from formation_bench.analysis.stats import SIGNIFICANCE
 from formation_bench.mpc.families import FAMILIES, JOINED, NOMINAL, scenario_families
@@ -233,10 +235,6 @@ def _is_true(value: object) -> bool:
     return isinstance(value, bool | np.bool_) and bool(value)
 
 
-def _row(cells: list[str]) -> str:
-    return "| " + " | ".join(cells) + " |"
-
-
 def _value_cell(row: dict | None, reference: dict | None, column: MetricColumn) -> str:
     """The median; against a reference, ``median vs reference median, A12 x.xx`` (``*``: the
     Holm-adjusted Wilcoxon p below the significance level)."""
@@ -262,6 +260,16 @@ def _rank_cell(row: dict | None) -> str:
         mark = "*" if _is_true(row.get("optimizer_significant")) else ""
         text += f" (A12 {row['optimizer_a12']:.2f}{mark})"
     return text.strip() or ("baseline" if row.get("is_optimizer_baseline") else "–")
+
+
+def _split(head: list[str], rows: list[list[str]], lead: int) -> list[str]:
+    """A table of ``lead`` columns naming the row and metric columns, as tables of the same
+    rows that each fit the page (:func:`~formation_bench.analysis.cells.fitted`), one after
+    the other."""
+    lines: list[str] = []
+    for part in fitted(Grid(head, rows, lead=lead, left=lead)):
+        lines += [*([""] if lines else []), *part.lines()]
+    return lines
 
 
 def _higher_is_better(metrics: list[str] | tuple[str, ...]) -> list[str]:
@@ -359,11 +367,9 @@ class _Tables:
         return [heading], lambda scenario: [label(scenario)]
 
     def values(self, block: Block, columns: list[MetricColumn]) -> list[str]:
+        """The values table, split into tables that fit the page (:func:`_split`)."""
         lead, label = self._lead(block.shown)
-        lines = [
-            _row([*lead, "optimizer", *(c.header for c in columns)]),
-            "|" + "---|" * (len(lead) + 1) + "---:|" * len(columns),
-        ]
+        rows = []
         for scenario in block.shown:
             reference = self.reference.get(scenario)
             for optimizer in self.optimizers:
@@ -375,8 +381,8 @@ class _Tables:
                         versus = self.row(reference, block.setting, optimizer, column.column)
                     cells.append(_value_cell(row, versus, column))
                 if any(c != "–" for c in cells) or not columns:
-                    lines.append(_row([*label(scenario), optimizer, *cells]))
-        return lines
+                    rows.append([*label(scenario), optimizer, *cells])
+        return _split([*lead, "optimizer", *(c.header for c in columns)], rows, len(lead) + 1)
 
     def tied(self, block: Block, metric: str) -> bool:
         """Whether every optimiser has the same average rank on ``metric`` in every ranked
@@ -400,6 +406,14 @@ class _Tables:
         ]
         return all(len(ranks) <= 1 for ranks in by_condition)
 
+    def _friedman_cell(self, scenario: str, setting: tuple[str, str], metric: str) -> str:
+        """Friedman's p (seeds) of the optimisers on ``metric`` in ``scenario``."""
+        rows = [self.row(scenario, setting, o, metric) for o in self.optimizers]
+        found = [r for r in rows if r is not None and pd.notna(r.get("friedman_p"))]
+        if not found:
+            return "–"
+        return f"{p_cell(found[0]['friedman_p'])} ({int(found[0]['friedman_seeds'])})"
+
     def ranks(self, block: Block, columns: list[MetricColumn], what: str) -> list[str]:
         """The optimisers' ranks in the block's ranked conditions; a metric on which every
         rank is tied is named on one line instead."""
@@ -421,30 +435,28 @@ class _Tables:
             f"in brackets A12 = P(optimiser > {self.baseline}), * Holm-adjusted p < "
             f"{SIGNIFICANCE:g}.",
             "",
-            _row([*lead, "optimizer", *(c.header for c in ranked)]),
-            "|" + "---|" * (len(lead) + 1) + "---:|" * len(ranked),
+        ]
+        rows = self._rank_rows(block, [c.column for c in ranked], label)
+        lines += _split([*lead, "optimizer", *(c.header for c in ranked)], rows, len(lead) + 1)
+        return [*lines, "", *([tied_line, ""] if tied else [])]
+
+    def _rank_rows(
+        self, block: Block, metrics: list[str], label: Callable[[str], list[str]]
+    ) -> list[list[str]]:
+        """Per ranked condition, each optimiser's ranks on ``metrics``, then Friedman's p."""
+        rows = [
+            [
+                *label(scenario),
+                optimizer,
+                *(_rank_cell(self.row(scenario, block.setting, optimizer, m)) for m in metrics),
+            ]
+            for scenario in block.ranked
+            for optimizer in self.optimizers
         ]
         for scenario in block.ranked:
-            for optimizer in self.optimizers:
-                cells = [
-                    _rank_cell(self.row(scenario, block.setting, optimizer, c.column))
-                    for c in ranked
-                ]
-                lines.append(_row([*label(scenario), optimizer, *cells]))
-        for scenario in block.ranked:
-            cells = []
-            for column in ranked:
-                rows = [
-                    self.row(scenario, block.setting, o, column.column) for o in self.optimizers
-                ]
-                found = [r for r in rows if r is not None and pd.notna(r.get("friedman_p"))]
-                cells.append(
-                    f"{p_cell(found[0]['friedman_p'])} ({int(found[0]['friedman_seeds'])})"
-                    if found
-                    else "–"
-                )
-            lines.append(_row([*label(scenario), "Friedman p (seeds)", *cells]))
-        return [*lines, "", *([tied_line, ""] if tied else [])]
+            cells = [self._friedman_cell(scenario, block.setting, m) for m in metrics]
+            rows.append([*label(scenario), "Friedman p (seeds)", *cells])
+        return rows
 
     def block(self, block: Block, what: str) -> tuple[str, list[str]]:
         """The Markdown of ``block`` and the metrics it has a column for: its values table,
@@ -506,6 +518,36 @@ def overall_ranking(runs: pd.DataFrame, metrics: tuple[str, ...], order: list[st
     return pd.DataFrame(rows)
 
 
+def _ranked_and_tied(here: pd.DataFrame, metrics: list[str]) -> tuple[list[str], list[str]]:
+    """The metrics of ``metrics`` on which the optimisers' ranks in ``here`` (one setting of
+    :func:`overall_ranking`) differ, and those on which they are all the same."""
+    ranked, tied = [], []
+    for metric in metrics:
+        ranks = here.loc[here["metric"] == metric, "average_rank"].dropna()
+        if ranks.empty:
+            continue
+        (tied if ranks.round(9).nunique() == 1 else ranked).append(metric)
+    return ranked, tied
+
+
+def _ranking_rows(here: pd.DataFrame, ranked: list[str]) -> list[list[str]]:
+    """Each optimiser's ranks on ``ranked`` in ``here``, then Friedman's p (blocks)."""
+    by_metric = {m: here[here["metric"] == m].set_index("optimizer") for m in ranked}
+    rows = []
+    for optimizer in dict.fromkeys(here["optimizer"]):
+        cells = []
+        for metric in ranked:
+            rank = by_metric[metric]["average_rank"].get(optimizer, math.nan)
+            cells.append("–" if pd.isna(rank) else f"{rank:.2f}")
+        rows.append([optimizer, *cells])
+    cells = []
+    for metric in ranked:
+        first = by_metric[metric].iloc[0]
+        cells.append(f"{p_cell(first['friedman_p'])} ({int(first['friedman_blocks'])})")
+    rows.append(["Friedman p (blocks)", *cells])
+    return rows
+
+
 def _ranking_lines(
     ranking: pd.DataFrame, runs: pd.DataFrame, metrics: tuple[str, ...], varying: list[str]
 ) -> list[str]:
@@ -518,12 +560,7 @@ def _ranking_lines(
         setting_runs = runs[(runs["trigger"] == trigger) & (runs["budget"] == budget)]
         present = [m for m in metrics if m in setting_runs and not absent(setting_runs, m)]
         constant = constant_metrics(setting_runs, present)
-        ranked, tied = [], []
-        for metric in (m for m in present if m not in constant):
-            ranks = here.loc[here["metric"] == metric, "average_rank"].dropna()
-            if ranks.empty:
-                continue
-            (tied if ranks.round(9).nunique() == 1 else ranked).append(metric)
+        ranked, tied = _ranked_and_tied(here, [m for m in present if m not in constant])
         title = f"### Ranking across all cells{_setting_text(setting, varying)}"
         if not ranked:
             lines += [
@@ -534,7 +571,6 @@ def _ranking_lines(
             ]
             continue
         columns = [metric_column(m, setting_runs[m]) for m in ranked]
-        by_metric = {m: here[here["metric"] == m].set_index("optimizer") for m in ranked}
         lines += [
             title,
             "",
@@ -542,20 +578,9 @@ def _ranking_lines(
             "graph, seed) that every optimiser ran, 1 = the lowest value"
             f"{_worst_note(ranked)}; last row: Friedman's p (blocks).",
             "",
-            _row(["optimizer", *(c.header for c in columns)]),
-            "|---|" + "---:|" * len(columns),
         ]
-        for optimizer in dict.fromkeys(here["optimizer"]):
-            cells = []
-            for metric in ranked:
-                rank = by_metric[metric]["average_rank"].get(optimizer, math.nan)
-                cells.append("–" if pd.isna(rank) else f"{rank:.2f}")
-            lines.append(_row([optimizer, *cells]))
-        cells = []
-        for metric in ranked:
-            first = by_metric[metric].iloc[0]
-            cells.append(f"{p_cell(first['friedman_p'])} ({int(first['friedman_blocks'])})")
-        lines += [_row(["Friedman p (blocks)", *cells]), ""]
+        rows = _ranking_rows(here, ranked)
+        lines += [*_split(["optimizer", *(c.header for c in columns)], rows, 1), ""]
         if tied:
             names = ", ".join(metric_column(m).name for m in tied)
             lines += [f"Every optimiser has the same average rank on: {names}.", ""]

@@ -15,7 +15,10 @@ with figures, ``figures/tuning_best_so_far.png``:
 
 - per variant: its base, objective (kind, metric, evaluation budget), the tuner's trials,
   batch and seed, the objective at the base configuration (trial 0) and at the tuned one,
-  the tuned settings and the wall time, and the total wall time of the tunings;
+  the tuned settings and the wall time (in tables of the same rows where one table would not
+  fit the documentation's content column:
+  :func:`~formation_bench.analysis.score_report.fitted_table`), and the total wall time of
+  the tunings;
 - the best value found so far (the running minimum of the trials' values) against the trial
   count, divided by the variant's default value so that every family shares an axis, one
   panel per objective kind;
@@ -28,6 +31,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,6 +40,7 @@ import numpy as np
 import pandas as pd
 
 from formation_bench.analysis.comparison import ReportError
+from formation_bench.analysis.score_report import Column, fitted_table
 from formation_bench.optimizers.tuned import TUNED_FORMAT
 
 FORMAT = TUNED_FORMAT
@@ -480,20 +485,9 @@ def to_markdown(variants: list[TunedVariant], figure: str | None = None) -> str:
         + "; ".join(_objective_data(variants))
         + ").",
         "",
-        "| variant | base | objective | metric | budget | trials | batch | seed | default value "
-        "| tuned value | tuned settings | wall time |",
-        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---|---:|",
     ]
-    for _, r in table.iterrows():
-        metric = r["metric"] if r["statistic"] in r["metric"] else f"{r['statistic']} {r['metric']}"
-        lines.append(
-            f"| {r['variant']} | {r['base']} | {r['objective']} | {metric} | {r['budget']} | "
-            f"{r['trials']} | {r['batch']} | {r['seed']} | {_number(r['default_value'])} | "
-            f"{_number(r['tuned_value'])} | {r['settings'] or '-'} | "
-            f"{_duration(r['wall_time_s'])} |"
-        )
+    lines += _variants_lines(table)
     lines += [
-        "",
         f"Total tuning wall time: {_duration(total)}"
         + (f" ({total:.0f} s)" if total >= 120 else "")
         + f" over {len(variants)} variants.",
@@ -508,6 +502,36 @@ def to_markdown(variants: list[TunedVariant], figure: str | None = None) -> str:
         ]
     lines += [flattening_sentence(variants), ""]
     return "\n".join(lines)
+
+
+def _variants_lines(table: pd.DataFrame) -> list[str]:
+    """The table of the variants (a :func:`variants_table`), split where it does not fit the
+    page in one: what each tuning was, then what it found, beside the variant's name."""
+
+    def column(header: str, cell: Callable[[pd.Series], str], text: bool = False) -> Column:
+        return Column(header, [cell(r) for _, r in table.iterrows()], text)
+
+    def metric(r: pd.Series) -> str:
+        # "median steady_state_cost", but not "median median normalised gap"
+        return r["metric"] if r["statistic"] in r["metric"] else f"{r['statistic']} {r['metric']}"
+
+    sections = [
+        [
+            column("base", lambda r: f"{r['base']}", text=True),
+            column("objective", lambda r: f"{r['objective']}", text=True),
+            column("metric", metric, text=True),
+            column("budget", lambda r: f"{r['budget']}"),
+        ],
+        [column(name, lambda r, name=name: f"{r[name]}") for name in ("trials", "batch", "seed")],
+        [
+            column("default value", lambda r: _number(r["default_value"])),
+            column("tuned value", lambda r: _number(r["tuned_value"])),
+        ],
+        [column("tuned settings", lambda r: r["settings"] or "-", text=True)],
+        [column("wall time", lambda r: _duration(r["wall_time_s"]))],
+    ]
+    lead = [column("variant", lambda r: f"{r['variant']}", text=True)]
+    return fitted_table(lead, sections)
 
 
 def write_tuning_report(variants: list[TunedVariant], folder: Path, *, figures: bool = True) -> str:

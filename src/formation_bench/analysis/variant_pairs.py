@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import pandas as pd
 
 from formation_bench.analysis import stats
-from formation_bench.analysis.cells import MetricColumn, metric_column, p_cell
+from formation_bench.analysis.cells import Grid, MetricColumn, fitted, metric_column, p_cell
 from formation_bench.analysis.comparison import prepare
 from formation_bench.mpc.metrics import headline_metrics
 
@@ -154,16 +154,18 @@ def to_markdown(table: pd.DataFrame) -> str:
             for m in metrics
         ]  # fmt: skip
         lines += [f"### scenario {scenario}, trigger {trigger}, {budget}", ""]
-        lines.append("| variant | base | pairs | " + " | ".join(c.header for c in columns) + " |")
-        lines.append("|---|---|---:|" + "---:|" * len(columns))
+        rows = []
         for (variant, base), pair in block.groupby(["variant", "base"], sort=False):
             by_metric = pair.set_index("metric")
-            cells = []
-            for metric, column in zip(metrics, columns, strict=True):
-                cells.append(_cell(column, by_metric.loc[metric]))
-            pairs = int(by_metric["n_pairs"].max())
-            lines.append(f"| {variant} | {base} | {pairs} | " + " | ".join(cells) + " |")
-        lines.append("")
+            cells = [
+                _cell(column, by_metric.loc[m]) for m, column in zip(metrics, columns, strict=True)
+            ]
+            rows.append([variant, base, str(int(by_metric["n_pairs"].max())), *cells])
+        grid = Grid(
+            ["variant", "base", "pairs", *(c.header for c in columns)], rows, lead=3, left=2
+        )
+        for part in fitted(grid):  # the pairs in every part, the metrics split to fit the page
+            lines += [*part.lines(), ""]
     return "\n".join(lines).rstrip() + "\n"
 
 
