@@ -29,12 +29,19 @@ def test_the_tutorial_suite_gives_the_tutorial_table(tmp_path, capsys, monkeypat
     table = text.split("<!-- produced by: formation-bench report results/my-first;", 1)[1]
     shown = [line for line in table.split("\n\n", 1)[0].splitlines() if line.startswith("|")]
     header, rows = cells(shown[0]), [cells(line) for line in shown[2:]]
-    report_lines = [line for line in printed.splitlines() if line.startswith("| optimizer |")]
-    report_header = cells(report_lines[0])
+    # the values tables (those with a runs column: the report splits the metrics into tables
+    # of the same rows to fit a page), the first value of each optimizer and metric
     reported: dict[str, dict[str, str]] = {}
-    for line in printed.splitlines():  # the first rows of each optimizer: the values table
-        if line.startswith("| ") and len(cells(line)) == len(report_header):
-            reported.setdefault(cells(line)[0], dict(zip(report_header, cells(line), strict=True)))
+    report_header: list[str] = []
+    for line in printed.splitlines():
+        if line.startswith("| optimizer |"):
+            report_header = cells(line) if cells(line)[1] == "runs" else []
+        elif report_header and line.startswith("| ") and not line.startswith("|---"):
+            values = dict(zip(report_header, cells(line), strict=True))
+            for column, value in values.items():
+                reported.setdefault(values["optimizer"], {}).setdefault(column, value)
+        elif not line.startswith("|"):
+            report_header = []
     assert len(rows) == 3
     for row in rows:
         for column, value in zip(header, row, strict=True):
