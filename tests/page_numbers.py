@@ -14,6 +14,8 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
+from test_suite_sections import SUITE as SECTIONS_SUITE
+
 from formation_bench.cli.main import main
 
 PAPER_SUITE = """\
@@ -38,45 +40,6 @@ name = "pso-warm"
 name = "paper"
 """
 
-SECTIONS_SUITE = """\
-name = "page-numbers-sections"
-seeds = 3
-triggers = [true]
-trace = false
-
-[[optimizers]]
-name = "modified-bso"
-overrides = { max_iterations = 2 }
-
-[[optimizers]]
-name = "pso"
-overrides = { max_iterations = 2 }
-
-[[scenarios]]
-name = "paper"
-label = "N3"
-overrides = { n_steps = 10, settle_time_s = 1.0 }
-
-[[scenarios]]
-name = "swarm-5"
-label = "N5-ring"
-overrides = { n_steps = 10, settle_time_s = 1.0, graph = "ring" }
-
-[[scenarios]]
-name = "paper"
-label = "loss-0.3"
-overrides = { n_steps = 10, settle_time_s = 1.0, packet_loss = 0.3 }
-
-[[scenarios]]
-name = "paper-obstacles"
-label = "obstacles-on"
-overrides = { n_steps = 10, settle_time_s = 1.0 }
-
-[[scenarios]]
-name = "paper-obstacles"
-label = "obstacles-off"
-overrides = { n_steps = 10, settle_time_s = 1.0, w_obstacle = 0.0, w_collision = 0.0 }
-"""
 
 SCORED = ("pso", "pso-tuned", "pso-warm", "modified-bso")
 """Optimisers scored at 1200 evaluations, the tuned variants' tuning budget: the leaderboard,
